@@ -1,0 +1,117 @@
+// PLANET communicator: one process's endpoint of the middleware.
+//
+// A Communicator owns the event loop (one asio io_context run by one thread it starts), the
+// Connection Manager (server and client roles), the ObjectAdapter that dispatches incoming
+// requests to servants, and the pending-request table that matches replies to calls. Proxies
+// (proxy.h) send calls through it. Everything it calls back (servants, listeners, async
+// completions without their own executor) runs on its io thread, which must never block.
+#pragma once
+
+#include <asio/io_context.hpp>
+#include <chrono>
+#include <cstdint>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "icars/planet/connection.h"
+#include "icars/planet/connection_manager.h"
+#include "icars/planet/detail/unique_function.h"
+#include "icars/planet/rmi_message.h"
+#include "icars/planet/servant.h"
+
+namespace spdlog {
+class logger;
+}
+
+namespace icars::planet {
+
+struct CommunicatorOptions {
+  ConnectionOptions connection;
+  std::chrono::milliseconds call_timeout{10000};  // default deadline of a two-way call
+  std::string pun;   // this endpoint's name in CONNECT/CONNECT_ACK; default "<address>:<port>"
+  std::string name = "planet";                   // logger name
+  std::shared_ptr<spdlog::logger> logger;        // default: a stderr logger at "info"
+};
+
+class Communicator final : private MessageHandler {
+ public:
+  explicit Communicator(CommunicatorOptions options = {});
+  ~Communicator() override;  // closes every connection and joins the io thread
+  Communicator(const Communicator&) = delete;
+  Communicator& operator=(const Communicator&) = delete;
+
+  ObjectAdapter& adapter() { return adapter_; }
+  ConnectionManager& connections() { return *manager_; }
+  asio::io_context& io() { return io_; }
+  asio::io_context::executor_type executor() { return io_.get_executor(); }
+  bool in_io_thread() const { return io_thread_id_ == std::this_thread::get_id(); }
+  spdlog::logger& log() { return *log_; }
+  const CommunicatorOptions& options() const { return options_; }
+
+  // Server role; see ConnectionManager::listen.
+  std::uint16_t listen(const std::string& address, std::uint16_t port);
+  // Client role; see ConnectionManager::connect.
+  std::shared_ptr<Peer> connect(const std::string& host, std::uint16_t port,
+                                ReconnectPolicy policy = {});
+
+  // --- Request Manager (used by Proxy) ---
+  using Completion = detail::UniqueFunction<void(std::exception_ptr, Reader*)>;
+  // Assigns a request id (written into `request` at kRequestIdOffset), registers `done` in the
+  // pending-request table and sends the request over `link`. `done` runs exactly once: with the
+  // REPLY's reader, or with the error (disconnected, overloaded, timeout, remote exception).
+  // It may run inline when the link is down. Returns the request id.
+  std::uint32_t start_call(const Link& link, std::vector<std::byte> request,
+                           std::chrono::milliseconds timeout, Completion done);
+  // Completes a pending call with `error` if it is still pending; false if it already completed.
+  bool cancel_call(std::uint32_t request_id, const Error& error);
+  // Sends a NOTIFY; throws Error(disconnected/overloaded) when it cannot be queued.
+  void send_oneway(const Link& link, std::vector<std::byte> request);
+  std::size_t pending_calls() const;
+
+ private:
+  struct Pending {
+    std::uint64_t connection_id = 0;
+    std::chrono::steady_clock::time_point deadline;
+    Completion done;
+  };
+
+  void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
+  void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,
+                          const std::string& reason) override;
+  void on_open(const std::shared_ptr<Connection>& c) override;
+  void on_close(const std::shared_ptr<Connection>& c, const Error& reason) override;
+
+  void dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway);
+  void finish_async(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                    std::string path, std::string method, Servant::AsyncResult work);
+  void report_failure(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                      std::string_view path, std::string_view method,
+                      const std::exception_ptr& failure);
+  void send_error(const std::shared_ptr<Connection>& c, std::uint32_t request_id, ErrorKind kind,
+                  const std::string& type_id, const std::string& message,
+                  const Properties& properties = {});
+  void complete(std::uint32_t request_id, std::exception_ptr error, Reader* result);
+  void sweep_deadlines();
+
+  CommunicatorOptions options_;
+  std::shared_ptr<spdlog::logger> log_;
+  asio::io_context io_;
+  std::unique_ptr<asio::executor_work_guard<asio::io_context::executor_type>> work_;
+  std::unique_ptr<ConnectionManager> manager_;
+  ObjectAdapter adapter_;
+  std::unique_ptr<asio::steady_timer> sweep_timer_;
+
+  mutable std::mutex pending_mutex_;
+  std::unordered_map<std::uint32_t, Pending> pending_;
+  std::uint32_t next_request_id_ = 1;
+
+  std::thread io_thread_;
+  std::thread::id io_thread_id_;
+};
+
+}  // namespace icars::planet

@@ -1,0 +1,204 @@
+// PLANET message transfer layer: one framed, flow-controlled, heart-beaten TCP connection.
+//
+// A Connection carries whole messages (byte strings) in both directions. It divides each
+// outgoing message into 16 KiB frames, interleaves the frames of concurrent messages fairly
+// (the I/O scheduler: control frames first, then one frame per message in turn), merges incoming
+// frames back into messages, enforces the DATA_ACK window (flow control), exchanges heartbeats
+// and closes itself when the peer falls silent. All of its state lives on one io_context
+// thread; `send` and `close` may be called from any thread.
+#pragma once
+
+#include <asio/io_context.hpp>
+#include <asio/ip/tcp.hpp>
+#include <asio/steady_timer.hpp>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "icars/planet/error.h"
+#include "icars/planet/frame.h"
+
+namespace spdlog {
+class logger;
+}
+
+namespace icars::planet {
+
+// Frames of one message the sender may have outstanding before a DATA_ACK(more); each ack
+// grants kAckEvery more. Fixed by protocol version 1 (docs/protocol.md, "Flow control").
+inline constexpr std::uint32_t kWindowFrames = 8;
+inline constexpr std::uint32_t kAckEvery = kWindowFrames / 2;
+
+struct ConnectionOptions {
+  std::chrono::milliseconds heartbeat_interval{1000};  // a HEARTBEAT is sent this often
+  std::chrono::milliseconds heartbeat_timeout{5000};   // silence longer than this closes the link
+  std::chrono::milliseconds handshake_timeout{5000};   // CONNECT / CONNECT_ACK must arrive by then
+  std::size_t max_message_size = 64u << 20;    // larger incoming messages are refused (NO_MORE)
+  std::size_t send_queue_limit = 128u << 20;   // bytes accepted but unwritten; beyond: overloaded
+  std::size_t receive_budget = 128u << 20;     // bytes of incomplete incoming messages before
+                                               // acks are held back (only the oldest proceeds)
+  std::size_t max_incomplete_messages = 256;   // interleaved incoming messages per connection
+
+  void validate() const;  // throws std::invalid_argument naming the bad option
+};
+
+enum class ConnectionRole : std::uint8_t { client, server };
+
+class Connection;
+
+// Implemented by the layer above the transport (the RMI layer). Called on the io thread.
+class MessageHandler {
+ public:
+  virtual ~MessageHandler() = default;
+  // A complete message; the span is valid only during the call.
+  virtual void on_message(const std::shared_ptr<Connection>& connection,
+                          std::span<const std::byte> message) = 0;
+  // A message this side refused (too large): its first frame, so the RMI layer can answer the
+  // request with an error instead of leaving the caller waiting.
+  virtual void on_message_refused(const std::shared_ptr<Connection>& connection,
+                                  std::span<const std::byte> first_frame,
+                                  const std::string& reason) = 0;
+  virtual void on_open(const std::shared_ptr<Connection>& connection) = 0;
+  virtual void on_close(const std::shared_ptr<Connection>& connection, const Error& reason) = 0;
+};
+
+// Something a proxy can send through: a live connection, or a reconnecting client Peer.
+class Link {
+ public:
+  virtual ~Link() = default;
+  // The connection to use now; null while a reconnecting link is down.
+  virtual std::shared_ptr<Connection> connection() const = 0;
+  virtual std::string describe() const = 0;  // for error messages
+};
+
+// Completion of a queued message: null once its last frame is written, or the error that
+// dropped it (disconnected, or refused by the peer).
+using SendHandler = std::function<void(const std::exception_ptr&)>;
+
+struct ConnectionStats {
+  std::uint64_t messages_sent = 0;
+  std::uint64_t messages_received = 0;
+  std::uint64_t frames_sent = 0;
+  std::uint64_t frames_received = 0;
+  std::uint64_t bytes_sent = 0;
+  std::uint64_t bytes_received = 0;
+  std::uint64_t messages_dropped = 0;  // queued messages discarded when the link closed
+};
+
+class Connection final : public Link, public std::enable_shared_from_this<Connection> {
+ public:
+  // Decides whether a server accepts a client: nullopt accepts, a string denies with that reason.
+  using Acceptor = std::function<std::optional<std::string>(const std::string& pun)>;
+
+  Connection(asio::ip::tcp::socket socket, ConnectionRole role, std::string local_pun,
+             const ConnectionOptions& options, MessageHandler& handler,
+             std::shared_ptr<spdlog::logger> logger, Acceptor acceptor = {});
+  ~Connection() override;
+  Connection(const Connection&) = delete;
+  Connection& operator=(const Connection&) = delete;
+
+  // Starts the handshake (a client sends CONNECT) and the read loop. Call once, on the io thread.
+  void start();
+
+  // Queues a message. Never blocks. Throws Error(disconnected) when the connection is not open
+  // and Error(overloaded) when the send queue would exceed `send_queue_limit`. `on_sent`, if
+  // given, runs exactly once on the io thread. Thread-safe.
+  void send(std::vector<std::byte> message, SendHandler on_sent = {});
+
+  // Closes the connection; queued messages are dropped and MessageHandler::on_close runs with
+  // Error(disconnected, reason). Thread-safe and idempotent.
+  void close(const std::string& reason);
+
+  bool is_open() const { return state_.load() == State::open; }
+  ConnectionRole role() const { return role_; }
+  std::uint64_t id() const { return id_; }
+  const std::string& local_pun() const { return local_pun_; }
+  std::string peer_pun() const;  // the PUN the peer announced in CONNECT / CONNECT_ACK
+  const std::string& remote_address() const { return remote_address_; }
+  std::size_t queued_bytes() const;  // bytes accepted by send() and not yet written
+  ConnectionStats stats() const;
+  std::size_t incomplete_bytes() const { return incomplete_bytes_.load(); }
+
+  std::shared_ptr<Connection> connection() const override;
+  std::string describe() const override;
+
+ private:
+  enum class State : std::uint8_t { handshaking, open, closed };
+  struct Outgoing;
+  struct Incoming;
+
+  void read_more();
+  void on_read(const std::error_code& ec, std::size_t n);
+  bool handle_frame(const FrameHeader& h, std::span<const std::byte> payload);
+  bool handle_connect(const FrameHeader& h, std::span<const std::byte> payload);
+  bool handle_connect_ack(std::span<const std::byte> payload);
+  bool handle_data(const FrameHeader& h, std::span<const std::byte> payload);
+  bool handle_data_ack(std::span<const std::byte> payload);
+  void release_deferred_acks();
+  void send_control(FrameCode code, std::vector<std::byte> payload, std::uint32_t msg_no = 0);
+  void schedule_write_locked();
+  void write_batch();
+  void on_written(const std::error_code& ec, std::size_t n);
+  bool try_direct_send_locked(Outgoing& msg);
+  void arm_timer();
+  void on_timer();
+  void fail(ErrorKind kind, const std::string& reason);
+  void finish_close();
+
+  static std::atomic<std::uint64_t> next_id_;
+
+  asio::ip::tcp::socket socket_;
+  asio::steady_timer timer_;
+  ConnectionRole role_;
+  std::string local_pun_;
+  ConnectionOptions options_;
+  MessageHandler& handler_;
+  std::shared_ptr<spdlog::logger> log_;
+  Acceptor acceptor_;
+  std::uint64_t id_;
+  std::string remote_address_;
+  std::atomic<State> state_{State::handshaking};
+  std::chrono::steady_clock::time_point last_received_;
+  std::chrono::steady_clock::time_point opened_at_;
+  bool close_after_flush_ = false;
+
+  // Receive side (io thread only).
+  std::vector<std::byte> rbuf_;
+  std::size_t rbegin_ = 0;
+  std::size_t rend_ = 0;
+  std::vector<std::unique_ptr<Incoming>> incoming_;  // in arrival order; the first is the oldest
+  std::atomic<std::size_t> incomplete_bytes_{0};
+
+  // Send side (guarded by send_mutex_).
+  mutable std::mutex send_mutex_;
+  bool send_open_ = true;
+  bool writing_ = false;
+  std::size_t queued_bytes_ = 0;
+  std::uint32_t next_msg_no_ = 1;
+  std::deque<std::vector<std::byte>> control_;  // whole frames (header included), sent first
+  std::list<Outgoing> messages_;                 // messages with frames left, round-robin order
+  ConnectionStats stats_;
+  std::vector<Outgoing> retired_;  // removed while a write may still reference their bytes
+
+  mutable std::mutex info_mutex_;
+  std::string peer_pun_;
+
+  // The batch being written (io thread only while writing_).
+  std::vector<asio::const_buffer> batch_;
+  std::vector<FrameHeaderBytes> batch_headers_;
+  std::vector<std::vector<std::byte>> batch_control_;
+  std::vector<Outgoing> batch_done_;  // messages whose last frame is in the batch
+  std::size_t batch_payload_bytes_ = 0;
+  std::size_t batch_frames_ = 0;
+};
+
+}  // namespace icars::planet

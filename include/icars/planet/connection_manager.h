@@ -1,0 +1,153 @@
+// PLANET Connection Manager: the client and server roles of the message transfer layer.
+//
+// The server role accepts TCP connections, completes the CONNECT / CONNECT_ACK handshake (an
+// optional acceptor may deny a client with a reason) and tracks live connections. The client
+// role is a `Peer`: a link to one server that connects in the background and, whenever the
+// link drops, reconnects by itself with exponential backoff until stopped. Listeners hear of
+// every connection, disconnection and reconnection. Either side may invoke objects on the other
+// over the same connection, so a device behind NAT connects out and is called back.
+#pragma once
+
+#include <asio/io_context.hpp>
+#include <asio/ip/tcp.hpp>
+#include <asio/steady_timer.hpp>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "icars/planet/connection.h"
+
+namespace icars::planet {
+
+struct ReconnectPolicy {
+  std::chrono::milliseconds initial_delay{50};   // first retry after a drop or failed attempt
+  std::chrono::milliseconds max_delay{2000};     // backoff doubles up to this
+  std::chrono::milliseconds connect_timeout{3000};  // per TCP connect attempt
+};
+
+enum class LinkEventKind : std::uint8_t { connected, disconnected, reconnected };
+
+class Peer;
+
+struct ConnectionEvent {
+  LinkEventKind kind;
+  std::shared_ptr<Connection> connection;
+  std::shared_ptr<Peer> peer;  // set for client-role links
+  std::string reason;          // why a link went down
+};
+
+// Runs on the io thread; must not block.
+using ConnectionListener = std::function<void(const ConnectionEvent&)>;
+
+class ConnectionManager;
+
+// The client role: a self-healing link to one server.
+class Peer final : public Link, public std::enable_shared_from_this<Peer> {
+ public:
+  Peer(ConnectionManager& manager, std::string host, std::uint16_t port, ReconnectPolicy policy);
+
+  std::shared_ptr<Connection> connection() const override;  // null while down
+  std::string describe() const override;
+  bool is_connected() const;
+  // Blocks (never call on the io thread) until connected or the timeout passes.
+  bool wait_connected(std::chrono::milliseconds timeout) const;
+  // Times the handshake succeeded; 2 or more means the link has been re-established.
+  std::uint64_t connect_count() const;
+  std::string last_error() const;
+  // Stops reconnecting and closes the link. Thread-safe.
+  void stop();
+
+ private:
+  friend class ConnectionManager;
+  void attempt();
+  void retry_later(const std::string& why);
+  void on_open(const std::shared_ptr<Connection>& c);
+  void on_close(const std::shared_ptr<Connection>& c, const std::string& reason);
+
+  ConnectionManager& manager_;
+  std::string host_;
+  std::uint16_t port_;
+  ReconnectPolicy policy_;
+  std::chrono::milliseconds delay_;
+  asio::ip::tcp::resolver resolver_;
+  asio::steady_timer timer_;
+  std::shared_ptr<asio::ip::tcp::socket> connecting_;
+
+  mutable std::mutex mutex_;
+  mutable std::condition_variable changed_;
+  std::shared_ptr<Connection> current_;   // open connection
+  std::shared_ptr<Connection> handshaking_;
+  std::uint64_t connect_count_ = 0;
+  bool stopped_ = false;
+  std::string last_error_;
+};
+
+class ConnectionManager final : public MessageHandler {
+ public:
+  ConnectionManager(asio::io_context& io, MessageHandler& upper, const ConnectionOptions& options,
+                    std::shared_ptr<spdlog::logger> logger);
+  ~ConnectionManager() override;
+
+  // Server role: listens on address:port (port 0 picks a free one) and returns the bound port.
+  std::uint16_t listen(const std::string& address, std::uint16_t port);
+  // Client role: a Peer that connects in the background and keeps reconnecting.
+  std::shared_ptr<Peer> connect(const std::string& host, std::uint16_t port,
+                                ReconnectPolicy policy = {});
+
+  std::uint64_t add_listener(ConnectionListener listener);
+  void remove_listener(std::uint64_t id);
+  void set_acceptor(Connection::Acceptor acceptor);  // call before listen()
+  void set_local_pun(std::string pun);  // defaults to "<address>:<port>" of the socket
+  std::string local_pun() const;
+
+  // Server-side connections that completed the handshake, and client links that are up.
+  std::vector<std::shared_ptr<Connection>> connections() const;
+  const ConnectionOptions& options() const { return options_; }
+  asio::io_context& io() { return io_; }
+  spdlog::logger& log() { return *log_; }
+
+  // Stops listening, stops every Peer and closes every connection. Call on the io thread, or
+  // from another thread while the io thread runs.
+  void shutdown();
+
+  // MessageHandler (called by connections on the io thread)
+  void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
+  void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,
+                          const std::string& reason) override;
+  void on_open(const std::shared_ptr<Connection>& c) override;
+  void on_close(const std::shared_ptr<Connection>& c, const Error& reason) override;
+
+ private:
+  friend class Peer;
+  struct Acceptor;
+  void accept_next(const std::shared_ptr<Acceptor>& acceptor);
+  std::shared_ptr<Connection> adopt(asio::ip::tcp::socket socket, ConnectionRole role,
+                                    const std::shared_ptr<Peer>& owner);
+  void notify(const ConnectionEvent& event);
+  void shutdown_on_io();
+
+  asio::io_context& io_;
+  MessageHandler& upper_;
+  ConnectionOptions options_;
+  std::shared_ptr<spdlog::logger> log_;
+
+  mutable std::mutex mutex_;
+  std::string local_pun_;
+  Connection::Acceptor accept_policy_;
+  std::vector<std::shared_ptr<Acceptor>> acceptors_;
+  std::unordered_map<std::uint64_t, std::shared_ptr<Connection>> connections_;
+  std::unordered_map<std::uint64_t, std::weak_ptr<Peer>> owners_;
+  std::vector<std::weak_ptr<Peer>> peers_;
+  std::map<std::uint64_t, ConnectionListener> listeners_;
+  std::uint64_t next_listener_ = 1;
+  bool shut_down_ = false;
+};
+
+}  // namespace icars::planet

@@ -1,0 +1,192 @@
+// PLANET proxies (stubs): typed calls on a remote object.
+//
+// A Proxy names a remote object by link and servant path and invokes its operations:
+//
+//   planet::Proxy calc(communicator, peer, "/calc");
+//   std::int32_t sum = calc.call(Calculator::add, 2, 3);                   // synchronous
+//   calc.async_call(Calculator::add, {2, 3}, [](std::exception_ptr e, std::int32_t sum) {...});
+//   std::future<std::int32_t> f = calc.async_call(Calculator::add, {2, 3}, asio::use_future);
+//   std::int32_t s = co_await calc.async_call(Calculator::add, {2, 3}, asio::use_awaitable);
+//   calc.notify(Calculator::log, "hello");                                  // one-way
+//
+// Failures arrive as Error (disconnected, overloaded, timeout, unimplemented, bad_data) or as
+// RemoteException for exceptions the servant raised. Asynchronous calls follow asio's
+// completion-token model: completion signature void(std::exception_ptr, R) (void(exception_ptr)
+// when R is void); the handler runs exactly once, on its associated executor (the
+// communicator's io thread by default), never inside async_call itself.
+#pragma once
+
+#include <asio/async_result.hpp>
+#include <asio/associated_executor.hpp>
+#include <asio/executor_work_guard.hpp>
+#include <asio/post.hpp>
+#include <chrono>
+#include <exception>
+#include <memory>
+#include <semaphore>
+#include <string>
+#include <tuple>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "icars/planet/communicator.h"
+#include "icars/planet/serializer.h"
+#include "icars/planet/servant.h"
+
+namespace icars::planet {
+
+class Proxy {
+ public:
+  Proxy(Communicator& communicator, std::shared_ptr<Link> link, std::string path)
+      : communicator_(&communicator),
+        link_(std::move(link)),
+        path_(std::move(path)),
+        timeout_(communicator.options().call_timeout) {}
+
+  // A proxy for an object passed by reference. A reference with an empty PUN, or with the PUN
+  // of `via`'s peer, is reached over `via` (the link it arrived on).
+  Proxy(Communicator& communicator, std::shared_ptr<Link> via, const ObjectRef& ref)
+      : Proxy(communicator, std::move(via), ref.path) {}
+
+  const std::string& path() const { return path_; }
+  const std::shared_ptr<Link>& link() const { return link_; }
+  std::chrono::milliseconds timeout() const { return timeout_; }
+  Proxy with_timeout(std::chrono::milliseconds timeout) const {
+    Proxy copy = *this;
+    copy.timeout_ = timeout;
+    return copy;
+  }
+
+  // Synchronous call: blocks the calling thread until the reply, an error or the timeout.
+  // Calling it on the communicator's io thread throws (it would deadlock); use async_call.
+  template <class R, class... A>
+  R call(const Operation<R(A...)>& op, const std::type_identity_t<A>&... args) const {
+    if (communicator_->in_io_thread()) {
+      throw Error(ErrorKind::failed,
+                  "synchronous call of '" + std::string(op.name()) +
+                      "' on the PLANET io thread would deadlock; use async_call");
+    }
+    struct State {
+      std::binary_semaphore done{0};
+      std::exception_ptr error;
+      std::conditional_t<std::is_void_v<R>, char, R> value{};
+    } state;
+    auto request = encode_request(RmiCode::call, op.name(), args...);
+    const std::uint32_t id = communicator_->start_call(
+        *link_, std::move(request), timeout_, [&state](std::exception_ptr e, Reader* r) {
+          if (!e) {
+            try {
+              if constexpr (std::is_void_v<R>) {
+                expect_void(*r);
+              } else {
+                state.value = decode_result<R>(*r);
+              }
+            } catch (...) {
+              e = std::current_exception();
+            }
+          }
+          state.error = e;
+          state.done.release();
+        });
+    // The deadline sweep fails the call at its deadline; the extra second only guards
+    // against a stalled io thread.
+    if (!state.done.try_acquire_for(timeout_ + std::chrono::seconds(1))) {
+      communicator_->cancel_call(id, timeout_error(op.name()));
+      state.done.acquire();
+    }
+    if (state.error) std::rethrow_exception(state.error);
+    if constexpr (!std::is_void_v<R>) return std::move(state.value);
+  }
+
+  // Asynchronous call (AMI) with any asio completion token: a callback, asio::use_future,
+  // asio::use_awaitable, asio::deferred...
+  template <class R, class... A, class Token>
+  auto async_call(const Operation<R(A...)>& op, std::type_identity_t<std::tuple<A...>> args,
+                  Token&& token) const {
+    using Signature = std::conditional_t<std::is_void_v<R>, void(std::exception_ptr),
+                                         void(std::exception_ptr, R)>;
+    return asio::async_initiate<Token, Signature>(
+        [this, name = op.name()](auto handler, std::tuple<A...> call_args) {
+          auto request = std::apply(
+              [&](const A&... a) { return encode_request(RmiCode::call, name, a...); }, call_args);
+          auto work = asio::make_work_guard(
+              asio::get_associated_executor(handler, communicator_->executor()));
+          communicator_->start_call(
+              *link_, std::move(request), timeout_,
+              [handler = std::move(handler), work = std::move(work)](std::exception_ptr e,
+                                                                       Reader* r) mutable {
+                std::conditional_t<std::is_void_v<R>, char, R> value{};
+                if (!e) {
+                  try {
+                    if constexpr (std::is_void_v<R>) {
+                      expect_void(*r);
+                    } else {
+                      value = decode_result<R>(*r);
+                    }
+                  } catch (...) {
+                    e = std::current_exception();
+                  }
+                }
+                auto ex = work.get_executor();
+                asio::post(ex, [handler = std::move(handler), e, value = std::move(value),
+                                work = std::move(work)]() mutable {
+                  if constexpr (std::is_void_v<R>) {
+                    (void)value;
+                    std::move(handler)(e);
+                  } else {
+                    std::move(handler)(e, std::move(value));
+                  }
+                });
+              });
+        },
+        token, std::move(args));
+  }
+
+  // One-way call (NOTIFY): returns once queued. Throws Error(disconnected) when the link is down
+  // and Error(overloaded) when the send queue is full. Delivery is at most once: a NOTIFY still
+  // queued when the link drops is discarded, never replayed after reconnection.
+  template <class... A>
+  void notify(const OneWay<A...>& op, const std::type_identity_t<A>&... args) const {
+    communicator_->send_oneway(*link_, encode_request(RmiCode::notify, op.name(), args...));
+  }
+
+ private:
+  template <class... A>
+  std::vector<std::byte> encode_request(RmiCode code, std::string_view method,
+                                        const A&... args) const {
+    std::vector<std::byte> out;
+    out.reserve(64 + path_.size() + method.size());
+    Writer w(out);
+    w.u8(static_cast<std::uint8_t>(code));
+    w.u32(0);  // request id, assigned by the communicator
+    w.str(path_);
+    w.str(method);
+    w.u8(static_cast<std::uint8_t>(sizeof...(A)));
+    (encode_tagged(w, args), ...);
+    return out;
+  }
+
+  template <class R>
+  static R decode_result(Reader& r) {
+    R value = decode_tagged<R>(r, "result");
+    if (r.remaining() != 0) r.fail("trailing bytes after the result");
+    return value;
+  }
+  static void expect_void(Reader& r) {
+    if (r.u8() != static_cast<std::uint8_t>(TypeCode::void_type) || r.remaining() != 0) {
+      r.fail("result: expected void");
+    }
+  }
+  Error timeout_error(std::string_view method) const {
+    return Error(ErrorKind::timeout, "no reply to '" + std::string(method) + "' on " + path_ +
+                                         " within " + std::to_string(timeout_.count()) + " ms");
+  }
+
+  Communicator* communicator_;
+  std::shared_ptr<Link> link_;
+  std::string path_;
+  std::chrono::milliseconds timeout_;
+};
+
+}  // namespace icars::planet

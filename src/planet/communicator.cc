@@ -1,0 +1,396 @@
+#include "icars/planet/communicator.h"
+
+#include <fmt/format.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <asio/co_spawn.hpp>
+#include <asio/post.hpp>
+#include <future>
+
+namespace icars::planet {
+
+namespace {
+constexpr auto kSweepInterval = std::chrono::milliseconds(20);
+}
+
+std::string_view to_string(RmiCode code) noexcept {
+  switch (code) {
+    case RmiCode::call:
+      return "CALL";
+    case RmiCode::reply:
+      return "REPLY";
+    case RmiCode::error:
+      return "ERROR";
+    case RmiCode::notify:
+      return "NOTIFY";
+    case RmiCode::stream:
+      return "STREAM";
+  }
+  return "UNKNOWN";
+}
+
+Communicator::Communicator(CommunicatorOptions options)
+    : options_(std::move(options)),
+      log_(options_.logger ? options_.logger
+                           : std::make_shared<spdlog::logger>(
+                                 options_.name,
+                                 std::make_shared<spdlog::sinks::stderr_color_sink_mt>())),
+      work_(std::make_unique<asio::executor_work_guard<asio::io_context::executor_type>>(
+          io_.get_executor())),
+      manager_(std::make_unique<ConnectionManager>(io_, static_cast<MessageHandler&>(*this), options_.connection, log_)),
+      sweep_timer_(std::make_unique<asio::steady_timer>(io_)) {
+  if (!options_.pun.empty()) manager_->set_local_pun(options_.pun);
+  std::promise<std::thread::id> started;
+  auto id = started.get_future();
+  io_thread_ = std::thread([this, &started] {
+    started.set_value(std::this_thread::get_id());
+    for (;;) {
+      try {
+        io_.run();
+        return;
+      } catch (const std::exception& e) {  // a handler threw: log it and keep the loop alive
+        log_->error("unhandled exception on the io thread: {}", e.what());
+      }
+    }
+  });
+  io_thread_id_ = id.get();
+  asio::post(io_, [this] { sweep_deadlines(); });
+}
+
+Communicator::~Communicator() {
+  manager_->shutdown();
+  asio::post(io_, [this] { sweep_timer_->cancel(); });
+  work_.reset();
+  // Everything was closed above; give pending handlers a moment to run, then stop the loop.
+  auto stopper = std::async(std::launch::async, [this] {
+    for (int i = 0; i < 200 && !io_.stopped(); ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    io_.stop();
+  });
+  io_thread_.join();
+  stopper.wait();
+  std::unordered_map<std::uint32_t, Pending> pending;
+  {
+    std::lock_guard lock(pending_mutex_);
+    pending.swap(pending_);
+  }
+  for (auto& [id, p] : pending) {
+    p.done(std::make_exception_ptr(Error(ErrorKind::disconnected, "communicator destroyed")),
+           nullptr);
+  }
+}
+
+std::uint16_t Communicator::listen(const std::string& address, std::uint16_t port) {
+  return manager_->listen(address, port);
+}
+
+std::shared_ptr<Peer> Communicator::connect(const std::string& host, std::uint16_t port,
+                                            ReconnectPolicy policy) {
+  return manager_->connect(host, port, policy);
+}
+
+// --- Request Manager -----------------------------------------------------------------------
+
+std::uint32_t Communicator::start_call(const Link& link, std::vector<std::byte> request,
+                                       std::chrono::milliseconds timeout, Completion done) {
+  auto connection = link.connection();
+  if (!connection) {
+    done(std::make_exception_ptr(Error(ErrorKind::disconnected,
+                                       fmt::format("link to {} is down", link.describe()))),
+         nullptr);
+    return 0;
+  }
+  std::uint32_t id = 0;
+  {
+    std::lock_guard lock(pending_mutex_);
+    do {
+      id = next_request_id_++;
+    } while (id == 0 || pending_.contains(id));
+    pending_.emplace(id, Pending{connection->id(), std::chrono::steady_clock::now() + timeout,
+                                 std::move(done)});
+  }
+  detail::store_be32(request.data() + kRequestIdOffset, id);
+  try {
+    connection->send(std::move(request));
+  } catch (const Error& e) {
+    cancel_call(id, e);
+  }
+  return id;
+}
+
+bool Communicator::cancel_call(std::uint32_t request_id, const Error& error) {
+  Completion done;
+  {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end()) return false;
+    done = std::move(it->second.done);
+    pending_.erase(it);
+  }
+  done(std::make_exception_ptr(error), nullptr);
+  return true;
+}
+
+void Communicator::send_oneway(const Link& link, std::vector<std::byte> request) {
+  auto connection = link.connection();
+  if (!connection) {
+    throw Error(ErrorKind::disconnected, fmt::format("link to {} is down", link.describe()));
+  }
+  connection->send(std::move(request));
+}
+
+std::size_t Communicator::pending_calls() const {
+  std::lock_guard lock(pending_mutex_);
+  return pending_.size();
+}
+
+void Communicator::complete(std::uint32_t request_id, std::exception_ptr error, Reader* result) {
+  Completion done;
+  {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end()) {
+      log_->debug("reply to unknown or expired request {} dropped", request_id);
+      return;
+    }
+    done = std::move(it->second.done);
+    pending_.erase(it);
+  }
+  done(std::move(error), result);
+}
+
+void Communicator::sweep_deadlines() {
+  const auto now = std::chrono::steady_clock::now();
+  std::vector<std::uint32_t> expired;
+  {
+    std::lock_guard lock(pending_mutex_);
+    for (const auto& [id, p] : pending_) {
+      if (p.deadline <= now) expired.push_back(id);
+    }
+  }
+  for (auto id : expired) {
+    cancel_call(id, Error(ErrorKind::timeout, fmt::format("no reply to request {} in time", id)));
+  }
+  sweep_timer_->expires_after(kSweepInterval);
+  sweep_timer_->async_wait([this](const std::error_code& ec) {
+    if (!ec) sweep_deadlines();
+  });
+}
+
+// --- Incoming messages ---------------------------------------------------------------------
+
+void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) {
+  Reader r(m);
+  std::uint32_t request_id = 0;
+  RmiCode code{};
+  try {
+    code = static_cast<RmiCode>(r.u8());
+    switch (code) {
+      case RmiCode::call:
+      case RmiCode::notify:
+        dispatch_request(c, r, code == RmiCode::notify);
+        return;
+      case RmiCode::reply:
+        request_id = r.u32();
+        complete(request_id, nullptr, &r);
+        return;
+      case RmiCode::error: {
+        request_id = r.u32();
+        const std::uint8_t raw_kind = r.u8();
+        RemoteException exception = Codec<RemoteException>::decode(r);
+        std::exception_ptr error;
+        if (raw_kind == static_cast<std::uint8_t>(ErrorKind::failed) ||
+            raw_kind < static_cast<std::uint8_t>(ErrorKind::failed) ||
+            raw_kind > static_cast<std::uint8_t>(ErrorKind::refused)) {
+          error = std::make_exception_ptr(std::move(exception));
+        } else {
+          error = std::make_exception_ptr(Error(static_cast<ErrorKind>(raw_kind),
+                                                exception.remote_message() + " (reported by " +
+                                                    c->describe() + ")"));
+        }
+        complete(request_id, error, nullptr);
+        return;
+      }
+      case RmiCode::stream: {
+        const std::uint32_t stream_id = r.u32();
+        log_->warn("STREAM message for stream {} from {} dropped: no such stream", stream_id,
+                   c->describe());
+        return;
+      }
+    }
+    log_->warn("message with unknown RMI code {} from {} dropped",
+               static_cast<unsigned>(code), c->describe());
+  } catch (const Error& e) {
+    log_->warn("malformed {} message from {} dropped: {}", to_string(code), c->describe(),
+               e.what());
+    if (code == RmiCode::reply && request_id != 0) {
+      // The caller still learns why: the reply it waited for could not be read.
+      complete(request_id, std::make_exception_ptr(e), nullptr);
+    }
+  }
+}
+
+void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway) {
+  const std::uint32_t request_id = r.u32();
+  std::string_view path;
+  std::string_view method;
+  try {
+    path = r.str_view();
+    method = r.str_view();
+  } catch (const Error& e) {
+    log_->warn("malformed request header from {}: {}", c->describe(), e.what());
+    if (!oneway) send_error(c, request_id, ErrorKind::bad_data, "planet::BadData", e.what());
+    return;
+  }
+  auto servant = adapter_.find(path);
+  if (!servant) {
+    const std::string message = fmt::format("no servant at path '{}'", path);
+    log_->debug("{} (method '{}', from {})", message, method, c->describe());
+    if (!oneway) send_error(c, request_id, ErrorKind::unimplemented, "planet::NoSuchObject", message);
+    return;
+  }
+  const Current current{c, path, method, oneway ? 0 : request_id};
+  std::vector<std::byte> reply;
+  Writer w(reply);
+  if (!oneway) {
+    reply.reserve(64);
+    w.u8(static_cast<std::uint8_t>(RmiCode::reply));
+    w.u32(request_id);
+  }
+  try {
+    auto pending = servant->dispatch(method, r, oneway ? nullptr : &w, current);
+    if (pending) {
+      finish_async(c, oneway ? 0 : request_id, std::string(path), std::string(method),
+                   std::move(*pending));
+      return;
+    }
+  } catch (...) {
+    report_failure(c, oneway ? 0 : request_id, path, method, std::current_exception());
+    return;
+  }
+  if (oneway) return;
+  try {
+    c->send(std::move(reply));
+  } catch (const Error& e) {
+    log_->warn("reply to request {} on '{}' not sent: {}", request_id, path, e.what());
+  }
+}
+
+void Communicator::finish_async(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                                std::string path, std::string method,
+                                Servant::AsyncResult work) {
+  asio::co_spawn(io_, std::move(work),
+                 [this, c, request_id, path = std::move(path), method = std::move(method)](
+                     std::exception_ptr e, std::vector<std::byte> result) {
+                   if (e) {
+                     report_failure(c, request_id, path, method, e);
+                     return;
+                   }
+                   if (request_id == 0) return;
+                   std::vector<std::byte> reply;
+                   reply.reserve(5 + result.size());
+                   Writer w(reply);
+                   w.u8(static_cast<std::uint8_t>(RmiCode::reply));
+                   w.u32(request_id);
+                   w.raw(result);
+                   try {
+                     c->send(std::move(reply));
+                   } catch (const Error& err) {
+                     log_->warn("reply to request {} on '{}' not sent: {}", request_id, path,
+                                err.what());
+                   }
+                 });
+}
+
+// Answers a failed request with ERROR (a NOTIFY, request_id 0, only logs it).
+void Communicator::report_failure(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                                  std::string_view path, std::string_view method,
+                                  const std::exception_ptr& failure) {
+  const bool oneway = request_id == 0;
+  try {
+    std::rethrow_exception(failure);
+  } catch (const RemoteException& e) {
+    if (oneway) {
+      log_->warn("one-way '{}' on '{}' raised {}", method, path, e.what());
+    } else {
+      send_error(c, request_id, ErrorKind::failed, e.type_id(), e.remote_message(), e.properties());
+    }
+  } catch (const Error& e) {
+    if (oneway) {
+      log_->warn("one-way '{}' on '{}' failed: {}", method, path, e.what());
+    } else {
+      const char* type = e.kind() == ErrorKind::unimplemented ? "planet::NoSuchMethod"
+                         : e.kind() == ErrorKind::bad_data    ? "planet::BadData"
+                                                              : "planet::Error";
+      send_error(c, request_id, e.kind(), type, e.message());
+    }
+  } catch (const std::exception& e) {
+    if (oneway) {
+      log_->warn("one-way '{}' on '{}' threw: {}", method, path, e.what());
+    } else {
+      send_error(c, request_id, ErrorKind::failed, "std::exception", e.what());
+    }
+  } catch (...) {
+    if (oneway) {
+      log_->warn("one-way '{}' on '{}' threw a non-standard exception", method, path);
+    } else {
+      send_error(c, request_id, ErrorKind::failed, "unknown", "the servant threw a non-standard exception");
+    }
+  }
+}
+
+void Communicator::send_error(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                              ErrorKind kind, const std::string& type_id,
+                              const std::string& message, const Properties& properties) {
+  std::vector<std::byte> out;
+  Writer w(out);
+  w.u8(static_cast<std::uint8_t>(RmiCode::error));
+  w.u32(request_id);
+  w.u8(static_cast<std::uint8_t>(kind));
+  w.str(type_id);
+  w.str(message);
+  properties.encode(w);
+  try {
+    c->send(std::move(out));
+  } catch (const Error& e) {
+    log_->warn("error reply to request {} not sent: {}", request_id, e.what());
+  }
+}
+
+void Communicator::on_message_refused(const std::shared_ptr<Connection>& c,
+                                      std::span<const std::byte> first,
+                                      const std::string& reason) {
+  try {
+    Reader r(first);
+    if (static_cast<RmiCode>(r.u8()) != RmiCode::call) return;
+    send_error(c, r.u32(), ErrorKind::overloaded, "planet::MessageTooLarge", reason);
+  } catch (const Error&) {
+    // Too little of the message arrived to name the request; the sender learns of the refusal
+    // from DATA_ACK(no more) and fails the call itself.
+  }
+}
+
+void Communicator::on_open(const std::shared_ptr<Connection>&) {}
+
+void Communicator::on_close(const std::shared_ptr<Connection>& c, const Error& reason) {
+  std::vector<Completion> failed;
+  {
+    std::lock_guard lock(pending_mutex_);
+    for (auto it = pending_.begin(); it != pending_.end();) {
+      if (it->second.connection_id == c->id()) {
+        failed.push_back(std::move(it->second.done));
+        it = pending_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+  if (failed.empty()) return;
+  const Error error(ErrorKind::disconnected,
+                    fmt::format("connection to {} lost: {}", c->describe(), reason.what()));
+  for (auto& done : failed) done(std::make_exception_ptr(error), nullptr);
+}
+
+}  // namespace icars::planet

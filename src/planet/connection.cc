@@ -1,0 +1,719 @@
+#include "icars/planet/connection.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <sys/socket.h>
+#include <sys/uio.h>
+
+#include <algorithm>
+#include <asio/post.hpp>
+#include <asio/write.hpp>
+#include <cerrno>
+#include <cstring>
+#include <stdexcept>
+
+#include "icars/planet/serializer.h"
+
+namespace icars::planet {
+
+namespace {
+
+constexpr std::size_t kReadBufferSize = 256 * 1024;
+constexpr std::size_t kMaxBatchBytes = 256 * 1024;  // one gathered write
+constexpr std::size_t kMaxBatchFrames = 64;
+
+std::vector<std::byte> frame_bytes(const FrameHeader& h, std::span<const std::byte> payload) {
+  std::vector<std::byte> out(kFrameHeaderSize + payload.size());
+  const auto header = encode_header(h);
+  std::memcpy(out.data(), header.data(), header.size());
+  if (!payload.empty()) std::memcpy(out.data() + kFrameHeaderSize, payload.data(), payload.size());
+  return out;
+}
+
+}  // namespace
+
+void ConnectionOptions::validate() const {
+  if (heartbeat_interval.count() <= 0) throw std::invalid_argument("heartbeat_interval must be > 0");
+  if (heartbeat_timeout <= heartbeat_interval) {
+    throw std::invalid_argument("heartbeat_timeout must be longer than heartbeat_interval");
+  }
+  if (handshake_timeout.count() <= 0) throw std::invalid_argument("handshake_timeout must be > 0");
+  if (max_message_size == 0) throw std::invalid_argument("max_message_size must be > 0");
+  if (send_queue_limit < max_message_size) {
+    throw std::invalid_argument("send_queue_limit must be at least max_message_size");
+  }
+  if (receive_budget < max_message_size) {
+    throw std::invalid_argument("receive_budget must be at least max_message_size");
+  }
+  if (max_incomplete_messages == 0) {
+    throw std::invalid_argument("max_incomplete_messages must be > 0");
+  }
+}
+
+struct Connection::Outgoing {
+  std::uint32_t msg_no = 0;
+  std::vector<std::byte> payload;
+  std::size_t offset = 0;  // bytes already framed
+  std::uint32_t next_frame = 0;
+  std::uint32_t credit = kWindowFrames;  // frames that may be sent before the next DATA_ACK
+  SendHandler on_sent;
+};
+
+struct Connection::Incoming {
+  std::uint32_t msg_no = 0;
+  std::uint32_t next_frame = 0;
+  std::uint32_t granted = kWindowFrames;  // frames the sender may send so far
+  std::uint32_t owed_acks = 0;            // acks held back by the receive budget
+  bool refused = false;
+  std::vector<std::byte> data;
+};
+
+std::atomic<std::uint64_t> Connection::next_id_{1};
+
+Connection::Connection(asio::ip::tcp::socket socket, ConnectionRole role, std::string local_pun,
+                       const ConnectionOptions& options, MessageHandler& handler,
+                       std::shared_ptr<spdlog::logger> logger, Acceptor acceptor)
+    : socket_(std::move(socket)),
+      timer_(socket_.get_executor()),
+      role_(role),
+      local_pun_(std::move(local_pun)),
+      options_(options),
+      handler_(handler),
+      log_(std::move(logger)),
+      acceptor_(std::move(acceptor)),
+      id_(next_id_.fetch_add(1)),
+      rbuf_(kReadBufferSize) {
+  options_.validate();
+  std::error_code ec;
+  socket_.set_option(asio::ip::tcp::no_delay(true), ec);
+  const auto remote = socket_.remote_endpoint(ec);
+  remote_address_ = ec ? "unknown" : fmt::format("{}:{}", remote.address().to_string(), remote.port());
+  batch_headers_.reserve(kMaxBatchFrames);
+}
+
+Connection::~Connection() = default;
+
+void Connection::start() {
+  last_received_ = opened_at_ = std::chrono::steady_clock::now();
+  if (role_ == ConnectionRole::client) {
+    std::vector<std::byte> payload;
+    Writer(payload).str(local_pun_);
+    send_control(FrameCode::connect, std::move(payload));
+  }
+  arm_timer();
+  read_more();
+}
+
+std::string Connection::peer_pun() const {
+  std::lock_guard lock(info_mutex_);
+  return peer_pun_;
+}
+
+std::string Connection::describe() const {
+  const std::string pun = peer_pun();
+  return pun.empty() ? remote_address_ : fmt::format("{} ({})", pun, remote_address_);
+}
+
+std::shared_ptr<Connection> Connection::connection() const {
+  return std::const_pointer_cast<Connection>(shared_from_this());
+}
+
+std::size_t Connection::queued_bytes() const {
+  std::lock_guard lock(send_mutex_);
+  return queued_bytes_;
+}
+
+ConnectionStats Connection::stats() const {
+  std::lock_guard lock(send_mutex_);
+  return stats_;
+}
+
+// --- Sending -------------------------------------------------------------------------------
+
+void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
+  std::unique_lock lock(send_mutex_);
+  if (!send_open_ || state_.load() != State::open) {
+    throw Error(ErrorKind::disconnected, fmt::format("connection to {} is not open", remote_address_));
+  }
+  if (message.size() > options_.max_message_size) {
+    throw Error(ErrorKind::overloaded,
+                fmt::format("message of {} bytes exceeds max_message_size ({} bytes)",
+                            message.size(), options_.max_message_size));
+  }
+  if (queued_bytes_ + message.size() > options_.send_queue_limit) {
+    throw Error(ErrorKind::overloaded,
+                fmt::format("send queue to {} is full ({} bytes queued, limit {}): the peer is not "
+                            "reading fast enough; retry later",
+                            remote_address_, queued_bytes_, options_.send_queue_limit));
+  }
+  Outgoing msg;
+  msg.msg_no = next_msg_no_++;
+  if (next_msg_no_ == 0) next_msg_no_ = 1;
+  msg.payload = std::move(message);
+  msg.on_sent = std::move(on_sent);
+  queued_bytes_ += msg.payload.size();
+  ++stats_.messages_sent;
+
+  // Fast path: nothing queued and the message fits one frame, so write it straight from this
+  // thread; the io thread is not woken at all when the kernel takes the whole frame.
+  if (!writing_ && control_.empty() && messages_.empty() &&
+      msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
+    return;
+  }
+  messages_.push_back(std::move(msg));
+  schedule_write_locked();
+}
+
+bool Connection::try_direct_send_locked(Outgoing& msg) {
+  FrameHeader h;
+  h.length = static_cast<std::uint32_t>(kFrameHeaderSize + msg.payload.size());
+  h.msg_no = msg.msg_no;
+  h.frame_no = 0;
+  h.final = true;
+  h.code = FrameCode::data;
+  auto header = encode_header(h);
+  iovec iov[2] = {{header.data(), header.size()}, {msg.payload.data(), msg.payload.size()}};
+  msghdr mh{};
+  mh.msg_iov = iov;
+  mh.msg_iovlen = msg.payload.empty() ? 1 : 2;
+  const ssize_t n = ::sendmsg(socket_.native_handle(), &mh, MSG_DONTWAIT | MSG_NOSIGNAL);
+  const std::size_t total = h.length;
+  const std::size_t written = n > 0 ? static_cast<std::size_t>(n) : 0;
+  if (written == 0) return false;  // let the io thread handle EAGAIN and errors
+  queued_bytes_ -= msg.payload.size();
+  ++stats_.frames_sent;
+  stats_.bytes_sent += written;
+  if (written < total) {
+    // The kernel took part of the frame: the rest goes out first, before any other frame.
+    std::vector<std::byte> rest(total - written);
+    const std::size_t from_header = written < kFrameHeaderSize ? kFrameHeaderSize - written : 0;
+    if (from_header) std::memcpy(rest.data(), header.data() + written, from_header);
+    const std::size_t payload_from = written < kFrameHeaderSize ? 0 : written - kFrameHeaderSize;
+    std::memcpy(rest.data() + from_header, msg.payload.data() + payload_from,
+                msg.payload.size() - payload_from);
+    stats_.bytes_sent -= rest.size();  // counted again when written
+    --stats_.frames_sent;
+    control_.push_front(std::move(rest));
+    schedule_write_locked();
+  }
+  return true;
+}
+
+void Connection::send_control(FrameCode code, std::vector<std::byte> payload, std::uint32_t msg_no) {
+  FrameHeader h;
+  h.length = static_cast<std::uint32_t>(kFrameHeaderSize + payload.size());
+  h.msg_no = msg_no;
+  h.code = code;
+  std::lock_guard lock(send_mutex_);
+  if (!send_open_) return;
+  control_.push_back(frame_bytes(h, payload));
+  schedule_write_locked();
+}
+
+void Connection::schedule_write_locked() {
+  if (writing_) return;
+  writing_ = true;
+  asio::post(socket_.get_executor(), [self = shared_from_this()] { self->write_batch(); });
+}
+
+void Connection::write_batch() {
+  std::unique_lock lock(send_mutex_);
+  batch_.clear();
+  batch_headers_.clear();
+  batch_payload_bytes_ = 0;
+  batch_frames_ = 0;
+  std::size_t bytes = 0;
+  if (!send_open_) {
+    writing_ = false;
+    return;
+  }
+  // Control frames (handshake, heartbeats, acks) go first: they are small and time-critical.
+  while (!control_.empty() && batch_frames_ < kMaxBatchFrames) {
+    batch_control_.push_back(std::move(control_.front()));
+    control_.pop_front();
+    batch_.emplace_back(asio::buffer(batch_control_.back()));
+    bytes += batch_control_.back().size();
+    ++batch_frames_;
+  }
+  // Then one frame from each message with credit, in turn, so no message monopolises the link.
+  bool progress = true;
+  while (progress && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames) {
+    progress = false;
+    for (auto it = messages_.begin();
+         it != messages_.end() && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames;) {
+      Outgoing& m = *it;
+      if (m.credit == 0) {
+        ++it;
+        continue;
+      }
+      const std::size_t n = std::min(kMaxFramePayload, m.payload.size() - m.offset);
+      FrameHeader h;
+      h.length = static_cast<std::uint32_t>(kFrameHeaderSize + n);
+      h.msg_no = m.msg_no;
+      h.frame_no = m.next_frame++;
+      h.final = m.offset + n == m.payload.size();
+      h.code = FrameCode::data;
+      batch_headers_.push_back(encode_header(h));
+      batch_.emplace_back(asio::buffer(batch_headers_.back()));
+      if (n != 0) batch_.emplace_back(asio::buffer(m.payload.data() + m.offset, n));
+      m.offset += n;
+      --m.credit;
+      bytes += h.length;
+      batch_payload_bytes_ += n;
+      ++batch_frames_;
+      progress = true;
+      if (h.final) {
+        batch_done_.push_back(std::move(m));
+        it = messages_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+  if (batch_.empty()) {
+    writing_ = false;
+    return;
+  }
+  lock.unlock();
+  asio::async_write(socket_, batch_,
+                    [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
+                      self->on_written(ec, n);
+                    });
+}
+
+void Connection::on_written(const std::error_code& ec, std::size_t n) {
+  std::vector<Outgoing> done;
+  {
+    std::lock_guard lock(send_mutex_);
+    done.swap(batch_done_);
+    batch_control_.clear();
+    retired_.clear();
+    if (!ec) {
+      queued_bytes_ -= std::min(queued_bytes_, batch_payload_bytes_);
+      stats_.frames_sent += batch_frames_;
+      stats_.bytes_sent += n;
+    }
+  }
+  if (ec) {
+    {
+      std::lock_guard lock(send_mutex_);
+      writing_ = false;
+    }
+    for (auto& m : done) {
+      if (m.on_sent) m.on_sent(std::make_exception_ptr(Error(ErrorKind::disconnected, "write failed")));
+    }
+    fail(ErrorKind::disconnected, fmt::format("write to {} failed: {}", describe(), ec.message()));
+    return;
+  }
+  for (auto& m : done) {
+    if (m.on_sent) m.on_sent(nullptr);
+  }
+  write_batch();
+  if (close_after_flush_) {
+    std::unique_lock lock(send_mutex_);
+    if (!writing_) {
+      lock.unlock();
+      finish_close();
+    }
+  }
+}
+
+// --- Receiving -----------------------------------------------------------------------------
+
+void Connection::read_more() {
+  if (state_.load() == State::closed || close_after_flush_) return;
+  if (rend_ == rbuf_.size()) {  // a complete frame always fits after compaction
+    std::memmove(rbuf_.data(), rbuf_.data() + rbegin_, rend_ - rbegin_);
+    rend_ -= rbegin_;
+    rbegin_ = 0;
+  }
+  socket_.async_read_some(asio::buffer(rbuf_.data() + rend_, rbuf_.size() - rend_),
+                          [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
+                            self->on_read(ec, n);
+                          });
+}
+
+void Connection::on_read(const std::error_code& ec, std::size_t n) {
+  if (state_.load() == State::closed) return;
+  if (ec) {
+    fail(ErrorKind::disconnected, ec == asio::error::eof
+                                      ? fmt::format("{} closed the connection", describe())
+                                      : fmt::format("read from {} failed: {}", describe(),
+                                                    ec.message()));
+    return;
+  }
+  rend_ += n;
+  last_received_ = std::chrono::steady_clock::now();
+  {
+    std::lock_guard lock(send_mutex_);
+    stats_.bytes_received += n;
+  }
+  while (state_.load() != State::closed && !close_after_flush_) {
+    const std::span<const std::byte> avail(rbuf_.data() + rbegin_, rend_ - rbegin_);
+    const HeaderParse parsed = parse_header(avail);
+    if (!parsed.error.empty()) {
+      if (parsed.version_mismatch && role_ == ConnectionRole::server &&
+          state_.load() == State::handshaking) {
+        std::vector<std::byte> payload;
+        Writer w(payload);
+        w.u8(kConnectDeny);
+        w.str(parsed.error);
+        send_control(FrameCode::connect_ack, std::move(payload));
+        log_->warn("denied {}: {}", remote_address_, parsed.error);
+        close_after_flush_ = true;
+        return;
+      }
+      fail(ErrorKind::bad_data, fmt::format("protocol error from {}: {}", describe(), parsed.error));
+      return;
+    }
+    if (!parsed.header || avail.size() < parsed.header->length) break;
+    const FrameHeader& h = *parsed.header;
+    if (!handle_frame(h, avail.subspan(kFrameHeaderSize, h.payload_size()))) return;
+    rbegin_ += h.length;
+  }
+  if (rbegin_ == rend_) rbegin_ = rend_ = 0;
+  read_more();
+}
+
+bool Connection::handle_frame(const FrameHeader& h, std::span<const std::byte> payload) {
+  {
+    std::lock_guard lock(send_mutex_);
+    ++stats_.frames_received;
+  }
+  if (state_.load() == State::handshaking) {
+    const FrameCode expected =
+        role_ == ConnectionRole::server ? FrameCode::connect : FrameCode::connect_ack;
+    if (h.code != expected) {
+      fail(ErrorKind::bad_data, fmt::format("protocol error from {}: expected {}, got {}",
+                                            remote_address_, to_string(expected), to_string(h.code)));
+      return false;
+    }
+    return h.code == FrameCode::connect ? handle_connect(h, payload) : handle_connect_ack(payload);
+  }
+  switch (h.code) {
+    case FrameCode::heartbeat:
+      send_control(FrameCode::heartbeat_ack, {});
+      return true;
+    case FrameCode::heartbeat_ack:
+      return true;
+    case FrameCode::data:
+      return handle_data(h, payload);
+    case FrameCode::data_ack:
+      return handle_data_ack(payload);
+    case FrameCode::connect:
+    case FrameCode::connect_ack:
+      break;
+  }
+  fail(ErrorKind::bad_data, fmt::format("protocol error from {}: unexpected {} on an open connection",
+                                        describe(), to_string(h.code)));
+  return false;
+}
+
+bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte> payload) {
+  std::string pun;
+  try {
+    Reader r(payload);
+    pun = r.str();
+    if (r.remaining() != 0) r.fail("trailing bytes after the PUN");
+  } catch (const Error& e) {
+    fail(ErrorKind::bad_data, fmt::format("malformed CONNECT from {}: {}", remote_address_, e.what()));
+    return false;
+  }
+  std::optional<std::string> deny;
+  if (h.version_minor > kProtocolMinor) {
+    log_->debug("{} speaks {}.{}; answering as {}.{}", remote_address_, h.version_major,
+                h.version_minor, kProtocolMajor, kProtocolMinor);
+  }
+  if (acceptor_) deny = acceptor_(pun);
+  std::vector<std::byte> reply;
+  Writer w(reply);
+  if (deny) {
+    w.u8(kConnectDeny);
+    w.str(*deny);
+    send_control(FrameCode::connect_ack, std::move(reply));
+    log_->warn("denied {} ({}): {}", pun, remote_address_, *deny);
+    close_after_flush_ = true;
+    return false;
+  }
+  w.u8(kConnectAccept);
+  w.str(local_pun_);
+  {
+    std::lock_guard lock(info_mutex_);
+    peer_pun_ = pun;
+  }
+  send_control(FrameCode::connect_ack, std::move(reply));
+  state_ = State::open;
+  arm_timer();
+  handler_.on_open(shared_from_this());
+  return state_.load() != State::closed;
+}
+
+bool Connection::handle_connect_ack(std::span<const std::byte> payload) {
+  std::uint8_t status = 0;
+  std::string text;
+  try {
+    Reader r(payload);
+    status = r.u8();
+    text = r.str();
+    if (r.remaining() != 0) r.fail("trailing bytes in CONNECT_ACK");
+    if (status != kConnectAccept && status != kConnectDeny) {
+      r.fail(fmt::format("unknown CONNECT_ACK status 0x{:02X}", status));
+    }
+  } catch (const Error& e) {
+    fail(ErrorKind::bad_data, fmt::format("malformed CONNECT_ACK from {}: {}", remote_address_, e.what()));
+    return false;
+  }
+  if (status == kConnectDeny) {
+    fail(ErrorKind::refused, fmt::format("{} denied the connection: {}", remote_address_, text));
+    return false;
+  }
+  {
+    std::lock_guard lock(info_mutex_);
+    peer_pun_ = std::move(text);
+  }
+  state_ = State::open;
+  arm_timer();
+  handler_.on_open(shared_from_this());
+  return state_.load() != State::closed;
+}
+
+bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> payload) {
+  auto it = std::find_if(incoming_.begin(), incoming_.end(),
+                         [&](const auto& in) { return in->msg_no == h.msg_no; });
+  Incoming* in = it == incoming_.end() ? nullptr : it->get();
+  auto protocol_error = [&](const std::string& what) {
+    fail(ErrorKind::bad_data, fmt::format("protocol error from {}: {}", describe(), what));
+    return false;
+  };
+
+  if (h.frame_no == 0) {
+    if (in) return protocol_error(fmt::format("message #{} started twice", h.msg_no));
+    if (h.final) {  // the common case: a whole message in one frame, delivered without copying
+      {
+        std::lock_guard lock(send_mutex_);
+        ++stats_.messages_received;
+      }
+      handler_.on_message(shared_from_this(), payload);
+      return state_.load() != State::closed;
+    }
+    if (incoming_.size() >= options_.max_incomplete_messages) {
+      return protocol_error(fmt::format("more than {} interleaved incomplete messages",
+                                        options_.max_incomplete_messages));
+    }
+    incoming_.push_back(std::make_unique<Incoming>());
+    in = incoming_.back().get();
+    in->msg_no = h.msg_no;
+    it = std::prev(incoming_.end());
+  } else if (!in) {
+    return protocol_error(fmt::format("frame #{} of unknown message #{}", h.frame_no, h.msg_no));
+  } else if (h.frame_no != in->next_frame) {
+    return protocol_error(fmt::format("frame #{} of message #{} out of order (expected #{})",
+                                      h.frame_no, h.msg_no, in->next_frame));
+  }
+  if (h.frame_no >= in->granted && !in->refused) {
+    return protocol_error(fmt::format("frame #{} of message #{} exceeds the flow-control window "
+                                      "(granted {} frames)",
+                                      h.frame_no, h.msg_no, in->granted));
+  }
+  ++in->next_frame;
+  if (in->refused) {  // frames already in flight when we said NO_MORE
+    if (h.final) incoming_.erase(it);
+    return true;
+  }
+  if (in->data.size() + payload.size() > options_.max_message_size) {
+    const std::string reason =
+        fmt::format("message #{} from {} exceeds max_message_size ({} bytes); refused", h.msg_no,
+                    describe(), options_.max_message_size);
+    log_->warn("{}", reason);
+    std::vector<std::byte> ack;
+    Writer w(ack);
+    w.u32(h.msg_no);
+    w.u32(static_cast<std::uint32_t>(AckCode::no_more));
+    send_control(FrameCode::data_ack, std::move(ack), h.msg_no);
+    in->refused = true;
+    incomplete_bytes_ -= in->data.size();
+    handler_.on_message_refused(shared_from_this(), in->data, reason);
+    in->data = {};
+    if (h.final) {
+      incoming_.erase(std::find_if(incoming_.begin(), incoming_.end(),
+                                   [&](const auto& x) { return x.get() == in; }));
+    }
+    release_deferred_acks();
+    return state_.load() != State::closed;
+  }
+  in->data.insert(in->data.end(), payload.begin(), payload.end());
+  incomplete_bytes_ += payload.size();
+  if (h.final) {
+    std::vector<std::byte> message = std::move(in->data);
+    incomplete_bytes_ -= message.size();
+    incoming_.erase(it);
+    {
+      std::lock_guard lock(send_mutex_);
+      ++stats_.messages_received;
+    }
+    handler_.on_message(shared_from_this(), message);
+    if (state_.load() == State::closed) return false;
+    release_deferred_acks();
+    return true;
+  }
+  if ((h.frame_no + 1) % kAckEvery == 0) {
+    ++in->owed_acks;
+    release_deferred_acks();
+  }
+  return true;
+}
+
+// Sends the acks that the receive budget allows, oldest message first. The oldest incomplete
+// message always gets its acks, so two large messages can never wait on each other.
+void Connection::release_deferred_acks() {
+  for (std::size_t i = 0; i < incoming_.size(); ++i) {
+    Incoming& in = *incoming_[i];
+    while (in.owed_acks > 0 && !in.refused &&
+           (i == 0 || incomplete_bytes_.load() <= options_.receive_budget)) {
+      --in.owed_acks;
+      in.granted += kAckEvery;
+      std::vector<std::byte> ack;
+      Writer w(ack);
+      w.u32(in.msg_no);
+      w.u32(static_cast<std::uint32_t>(AckCode::more));
+      send_control(FrameCode::data_ack, std::move(ack), in.msg_no);
+    }
+  }
+}
+
+bool Connection::handle_data_ack(std::span<const std::byte> payload) {
+  std::uint32_t msg_no = 0;
+  std::uint32_t code = 0;
+  try {
+    Reader r(payload);
+    msg_no = r.u32();
+    code = r.u32();
+    if (r.remaining() != 0) r.fail("trailing bytes in DATA_ACK");
+    if (code != static_cast<std::uint32_t>(AckCode::more) &&
+        code != static_cast<std::uint32_t>(AckCode::no_more)) {
+      r.fail(fmt::format("unknown DATA_ACK control code 0x{:02X}", code));
+    }
+  } catch (const Error& e) {
+    fail(ErrorKind::bad_data, fmt::format("malformed DATA_ACK from {}: {}", describe(), e.what()));
+    return false;
+  }
+  SendHandler refused_handler;
+  bool refused = false;
+  {
+    std::lock_guard lock(send_mutex_);
+    auto it = std::find_if(messages_.begin(), messages_.end(),
+                           [&](const Outgoing& m) { return m.msg_no == msg_no; });
+    if (it == messages_.end()) return true;  // already fully written
+    if (code == static_cast<std::uint32_t>(AckCode::more)) {
+      it->credit += kAckEvery;
+      schedule_write_locked();
+      return true;
+    }
+    refused = true;
+    queued_bytes_ -= std::min(queued_bytes_, it->payload.size() - it->offset);
+    refused_handler = std::move(it->on_sent);
+    retired_.push_back(std::move(*it));
+    messages_.erase(it);
+  }
+  if (refused) {
+    log_->warn("{} refused message #{} (too large for its max_message_size)", describe(), msg_no);
+    if (refused_handler) {
+      refused_handler(std::make_exception_ptr(
+          Error(ErrorKind::overloaded,
+                fmt::format("{} refused message #{}: larger than its max_message_size", describe(),
+                            msg_no))));
+    }
+  }
+  return true;
+}
+
+// --- Timers and closing --------------------------------------------------------------------
+
+void Connection::arm_timer() {
+  const auto delay = state_.load() == State::handshaking
+                         ? options_.handshake_timeout
+                         : std::chrono::milliseconds(options_.heartbeat_interval);
+  timer_.expires_after(delay);
+  timer_.async_wait([weak = weak_from_this()](const std::error_code& ec) {
+    if (ec) return;
+    if (auto self = weak.lock()) self->on_timer();
+  });
+}
+
+void Connection::on_timer() {
+  const auto now = std::chrono::steady_clock::now();
+  switch (state_.load()) {
+    case State::closed:
+      return;
+    case State::handshaking:
+      if (now - opened_at_ >= options_.handshake_timeout) {
+        fail(ErrorKind::disconnected,
+             fmt::format("handshake with {} timed out: no {} within {} ms", remote_address_,
+                         role_ == ConnectionRole::server ? "CONNECT" : "CONNECT_ACK",
+                         options_.handshake_timeout.count()));
+        return;
+      }
+      break;
+    case State::open: {
+      const auto silent =
+          std::chrono::duration_cast<std::chrono::milliseconds>(now - last_received_);
+      if (silent >= options_.heartbeat_timeout) {
+        fail(ErrorKind::disconnected,
+             fmt::format("heartbeat timeout: nothing heard from {} for {} ms", describe(),
+                         silent.count()));
+        return;
+      }
+      send_control(FrameCode::heartbeat, {});
+      break;
+    }
+  }
+  arm_timer();
+}
+
+void Connection::close(const std::string& reason) {
+  {
+    std::lock_guard lock(send_mutex_);
+    send_open_ = false;
+  }
+  asio::post(socket_.get_executor(), [self = shared_from_this(), reason] {
+    self->fail(ErrorKind::disconnected, fmt::format("closed locally: {}", reason));
+  });
+}
+
+void Connection::finish_close() {
+  fail(ErrorKind::refused, fmt::format("connection from {} denied", remote_address_));
+}
+
+void Connection::fail(ErrorKind kind, const std::string& reason) {
+  if (state_.exchange(State::closed) == State::closed) return;
+  if (kind == ErrorKind::bad_data) {
+    log_->warn("closing connection {}: {}", id_, reason);
+  } else {
+    log_->info("connection {} closed: {}", id_, reason);
+  }
+  std::vector<SendHandler> dropped;
+  {
+    std::lock_guard lock(send_mutex_);
+    send_open_ = false;
+    for (auto& m : messages_) {
+      ++stats_.messages_dropped;
+      if (m.on_sent) dropped.push_back(std::move(m.on_sent));
+      retired_.push_back(std::move(m));
+    }
+    messages_.clear();
+    control_.clear();
+    queued_bytes_ = 0;
+    if (!writing_) retired_.clear();
+  }
+  timer_.cancel();
+  std::error_code ignored;
+  socket_.shutdown(asio::ip::tcp::socket::shutdown_both, ignored);
+  socket_.close(ignored);
+  incoming_.clear();
+  incomplete_bytes_ = 0;
+  const Error error(ErrorKind::disconnected, reason);
+  for (auto& h : dropped) h(std::make_exception_ptr(error));
+  handler_.on_close(shared_from_this(), Error(kind, reason));
+}
+
+}  // namespace icars::planet

@@ -1,0 +1,386 @@
+#include "icars/planet/connection_manager.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <asio/connect.hpp>
+#include <asio/post.hpp>
+#include <future>
+
+namespace icars::planet {
+
+struct ConnectionManager::Acceptor {
+  explicit Acceptor(asio::io_context& io) : socket(io) {}
+  asio::ip::tcp::acceptor socket;
+};
+
+// --- Peer ----------------------------------------------------------------------------------
+
+Peer::Peer(ConnectionManager& manager, std::string host, std::uint16_t port, ReconnectPolicy policy)
+    : manager_(manager),
+      host_(std::move(host)),
+      port_(port),
+      policy_(policy),
+      delay_(policy.initial_delay),
+      resolver_(manager.io()),
+      timer_(manager.io()) {}
+
+std::shared_ptr<Connection> Peer::connection() const {
+  std::lock_guard lock(mutex_);
+  return current_;
+}
+
+std::string Peer::describe() const { return fmt::format("{}:{}", host_, port_); }
+
+bool Peer::is_connected() const {
+  std::lock_guard lock(mutex_);
+  return current_ != nullptr;
+}
+
+bool Peer::wait_connected(std::chrono::milliseconds timeout) const {
+  std::unique_lock lock(mutex_);
+  return changed_.wait_for(lock, timeout, [&] { return current_ != nullptr || stopped_; }) &&
+         current_ != nullptr;
+}
+
+std::uint64_t Peer::connect_count() const {
+  std::lock_guard lock(mutex_);
+  return connect_count_;
+}
+
+std::string Peer::last_error() const {
+  std::lock_guard lock(mutex_);
+  return last_error_;
+}
+
+void Peer::stop() {
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_) return;
+    stopped_ = true;
+  }
+  changed_.notify_all();
+  asio::post(manager_.io(), [self = shared_from_this()] {
+    self->timer_.cancel();
+    self->resolver_.cancel();
+    if (self->connecting_) {
+      std::error_code ignored;
+      self->connecting_->close(ignored);
+    }
+    std::shared_ptr<Connection> a;
+    std::shared_ptr<Connection> b;
+    {
+      std::lock_guard lock(self->mutex_);
+      a = self->current_;
+      b = self->handshaking_;
+    }
+    if (a) a->close("peer stopped");
+    if (b) b->close("peer stopped");
+  });
+}
+
+void Peer::attempt() {
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_) return;
+  }
+  auto self = shared_from_this();
+  resolver_.async_resolve(
+      host_, std::to_string(port_),
+      [self](const std::error_code& ec, const asio::ip::tcp::resolver::results_type& results) {
+        if (ec) {
+          self->retry_later(fmt::format("cannot resolve {}: {}", self->host_, ec.message()));
+          return;
+        }
+        auto socket = std::make_shared<asio::ip::tcp::socket>(self->manager_.io());
+        self->connecting_ = socket;
+        self->timer_.expires_after(self->policy_.connect_timeout);
+        self->timer_.async_wait([socket](const std::error_code& tec) {
+          if (!tec) {
+            std::error_code ignored;
+            socket->close(ignored);
+          }
+        });
+        asio::async_connect(
+            *socket, results,
+            [self, socket](const std::error_code& cec, const asio::ip::tcp::endpoint&) {
+              self->timer_.cancel();
+              self->connecting_.reset();
+              if (cec) {
+                self->retry_later(fmt::format("cannot connect to {}: {}", self->describe(),
+                                              cec.message()));
+                return;
+              }
+              {
+                std::lock_guard lock(self->mutex_);
+                if (self->stopped_) return;
+              }
+              auto connection =
+                  self->manager_.adopt(std::move(*socket), ConnectionRole::client, self);
+              std::lock_guard lock(self->mutex_);
+              self->handshaking_ = connection;
+            });
+      });
+}
+
+void Peer::retry_later(const std::string& why) {
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_) return;
+    last_error_ = why;
+  }
+  manager_.log().debug("{}; retrying in {} ms", why, delay_.count());
+  timer_.expires_after(delay_);
+  delay_ = std::min(policy_.max_delay, delay_ * 2);
+  timer_.async_wait([self = shared_from_this()](const std::error_code& ec) {
+    if (!ec) self->attempt();
+  });
+}
+
+void Peer::on_open(const std::shared_ptr<Connection>& c) {
+  bool reconnect = false;
+  {
+    std::lock_guard lock(mutex_);
+    handshaking_.reset();
+    current_ = c;
+    reconnect = connect_count_++ > 0;
+    delay_ = policy_.initial_delay;
+  }
+  changed_.notify_all();
+  manager_.notify({reconnect ? LinkEventKind::reconnected : LinkEventKind::connected, c,
+                   shared_from_this(), {}});
+}
+
+void Peer::on_close(const std::shared_ptr<Connection>& c, const std::string& reason) {
+  bool was_open = false;
+  {
+    std::lock_guard lock(mutex_);
+    if (current_ == c) {
+      current_.reset();
+      was_open = true;
+    }
+    if (handshaking_ == c) handshaking_.reset();
+    last_error_ = reason;
+  }
+  changed_.notify_all();
+  if (was_open) {
+    manager_.notify({LinkEventKind::disconnected, c, shared_from_this(), reason});
+  }
+  retry_later(reason);
+}
+
+// --- ConnectionManager ---------------------------------------------------------------------
+
+ConnectionManager::ConnectionManager(asio::io_context& io, MessageHandler& upper,
+                                     const ConnectionOptions& options,
+                                     std::shared_ptr<spdlog::logger> logger)
+    : io_(io), upper_(upper), options_(options), log_(std::move(logger)) {
+  options_.validate();
+}
+
+ConnectionManager::~ConnectionManager() = default;
+
+void ConnectionManager::set_acceptor(Connection::Acceptor acceptor) {
+  std::lock_guard lock(mutex_);
+  accept_policy_ = std::move(acceptor);
+}
+
+void ConnectionManager::set_local_pun(std::string pun) {
+  std::lock_guard lock(mutex_);
+  local_pun_ = std::move(pun);
+}
+
+std::string ConnectionManager::local_pun() const {
+  std::lock_guard lock(mutex_);
+  return local_pun_;
+}
+
+std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_t port) {
+  auto acceptor = std::make_shared<Acceptor>(io_);
+  const asio::ip::tcp::endpoint endpoint(asio::ip::make_address(address), port);
+  acceptor->socket.open(endpoint.protocol());
+  acceptor->socket.set_option(asio::ip::tcp::acceptor::reuse_address(true));
+  acceptor->socket.bind(endpoint);
+  acceptor->socket.listen(asio::socket_base::max_listen_connections);
+  const std::uint16_t bound = acceptor->socket.local_endpoint().port();
+  {
+    std::lock_guard lock(mutex_);
+    if (local_pun_.empty()) local_pun_ = fmt::format("{}:{}", address, bound);
+    acceptors_.push_back(acceptor);
+  }
+  asio::post(io_, [this, acceptor] { accept_next(acceptor); });
+  log_->info("listening on {}:{}", address, bound);
+  return bound;
+}
+
+void ConnectionManager::accept_next(const std::shared_ptr<Acceptor>& acceptor) {
+  acceptor->socket.async_accept([this, acceptor](const std::error_code& ec,
+                                                 asio::ip::tcp::socket socket) {
+    if (ec == asio::error::operation_aborted || !acceptor->socket.is_open()) return;
+    if (ec) {
+      log_->warn("accept failed: {}", ec.message());
+    } else {
+      adopt(std::move(socket), ConnectionRole::server, nullptr);
+    }
+    accept_next(acceptor);
+  });
+}
+
+std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socket,
+                                                     ConnectionRole role,
+                                                     const std::shared_ptr<Peer>& owner) {
+  std::string pun;
+  Connection::Acceptor policy;
+  {
+    std::lock_guard lock(mutex_);
+    pun = local_pun_;
+    policy = accept_policy_;
+  }
+  if (pun.empty()) {
+    std::error_code ec;
+    const auto local = socket.local_endpoint(ec);
+    pun = ec ? "unknown" : fmt::format("{}:{}", local.address().to_string(), local.port());
+  }
+  auto connection = std::make_shared<Connection>(std::move(socket), role, std::move(pun), options_,
+                                                 *this, log_, std::move(policy));
+  {
+    std::lock_guard lock(mutex_);
+    connections_.emplace(connection->id(), connection);
+    if (owner) owners_.emplace(connection->id(), owner);
+  }
+  connection->start();
+  return connection;
+}
+
+std::shared_ptr<Peer> ConnectionManager::connect(const std::string& host, std::uint16_t port,
+                                                 ReconnectPolicy policy) {
+  auto peer = std::make_shared<Peer>(*this, host, port, policy);
+  {
+    std::lock_guard lock(mutex_);
+    peers_.push_back(peer);
+  }
+  asio::post(io_, [peer] { peer->attempt(); });
+  return peer;
+}
+
+std::uint64_t ConnectionManager::add_listener(ConnectionListener listener) {
+  std::lock_guard lock(mutex_);
+  listeners_.emplace(next_listener_, std::move(listener));
+  return next_listener_++;
+}
+
+void ConnectionManager::remove_listener(std::uint64_t id) {
+  std::lock_guard lock(mutex_);
+  listeners_.erase(id);
+}
+
+void ConnectionManager::notify(const ConnectionEvent& event) {
+  std::vector<ConnectionListener> listeners;
+  {
+    std::lock_guard lock(mutex_);
+    for (const auto& [id, l] : listeners_) listeners.push_back(l);
+  }
+  for (const auto& l : listeners) {
+    try {
+      l(event);
+    } catch (const std::exception& e) {
+      log_->error("connection listener threw: {}", e.what());
+    }
+  }
+}
+
+std::vector<std::shared_ptr<Connection>> ConnectionManager::connections() const {
+  std::lock_guard lock(mutex_);
+  std::vector<std::shared_ptr<Connection>> out;
+  for (const auto& [id, c] : connections_) {
+    if (c->is_open()) out.push_back(c);
+  }
+  return out;
+}
+
+void ConnectionManager::on_message(const std::shared_ptr<Connection>& c,
+                                   std::span<const std::byte> m) {
+  upper_.on_message(c, m);
+}
+
+void ConnectionManager::on_message_refused(const std::shared_ptr<Connection>& c,
+                                           std::span<const std::byte> first,
+                                           const std::string& reason) {
+  upper_.on_message_refused(c, first, reason);
+}
+
+void ConnectionManager::on_open(const std::shared_ptr<Connection>& c) {
+  std::shared_ptr<Peer> owner;
+  {
+    std::lock_guard lock(mutex_);
+    if (auto it = owners_.find(c->id()); it != owners_.end()) owner = it->second.lock();
+  }
+  log_->info("connection {} open: {} ({})", c->id(), c->describe(),
+             c->role() == ConnectionRole::client ? "client" : "server");
+  upper_.on_open(c);
+  if (owner) {
+    owner->on_open(c);
+  } else {
+    notify({LinkEventKind::connected, c, nullptr, {}});
+  }
+}
+
+void ConnectionManager::on_close(const std::shared_ptr<Connection>& c, const Error& reason) {
+  std::shared_ptr<Peer> owner;
+  bool had_owner = false;
+  {
+    std::lock_guard lock(mutex_);
+    connections_.erase(c->id());
+    if (auto it = owners_.find(c->id()); it != owners_.end()) {
+      owner = it->second.lock();
+      had_owner = true;
+      owners_.erase(it);
+    }
+  }
+  upper_.on_close(c, reason);
+  if (owner) {
+    owner->on_close(c, reason.what());
+  } else if (!had_owner && !c->peer_pun().empty()) {
+    notify({LinkEventKind::disconnected, c, nullptr, reason.what()});
+  }
+}
+
+void ConnectionManager::shutdown() {
+  if (io_.get_executor().running_in_this_thread() || io_.stopped()) {
+    shutdown_on_io();
+    return;
+  }
+  std::promise<void> done;
+  auto finished = done.get_future();
+  asio::post(io_, [this, &done] {
+    shutdown_on_io();
+    done.set_value();
+  });
+  finished.wait();
+}
+
+void ConnectionManager::shutdown_on_io() {
+  std::vector<std::shared_ptr<Acceptor>> acceptors;
+  std::vector<std::shared_ptr<Peer>> peers;
+  std::vector<std::shared_ptr<Connection>> connections;
+  {
+    std::lock_guard lock(mutex_);
+    if (shut_down_) return;
+    shut_down_ = true;
+    acceptors.swap(acceptors_);
+    for (auto& w : peers_) {
+      if (auto p = w.lock()) peers.push_back(p);
+    }
+    peers_.clear();
+    for (auto& [id, c] : connections_) connections.push_back(c);
+  }
+  for (auto& a : acceptors) {
+    std::error_code ignored;
+    a->socket.close(ignored);
+  }
+  for (auto& p : peers) p->stop();
+  for (auto& c : connections) c->close("shutting down");
+}
+
+}  // namespace icars::planet

@@ -1,0 +1,179 @@
+#include "icars/planet/serializer.h"
+
+#include <fmt/format.h>
+
+#include <limits>
+
+namespace icars::planet {
+
+void Writer::length(std::size_t n) {
+  if (n > std::numeric_limits<std::uint32_t>::max()) {
+    throw Error(ErrorKind::bad_data, fmt::format("length {} does not fit the u32 length field", n));
+  }
+  u32(static_cast<std::uint32_t>(n));
+}
+
+std::size_t Reader::count(std::size_t min_item_size, const char* what) {
+  const std::uint32_t n = u32();
+  if (min_item_size != 0 && n > remaining() / min_item_size) {
+    fail(fmt::format("{} length {} exceeds the {} bytes left in the message", what, n,
+                     remaining()));
+  }
+  return n;
+}
+
+void Reader::fail(const std::string& what) const {
+  throw Error(ErrorKind::bad_data, fmt::format("{} (at byte {})", what, pos_));
+}
+
+void Reader::underflow(std::size_t n, const char* what) const {
+  fail(fmt::format("truncated input: {} needs {} bytes, {} left", what, n, remaining()));
+}
+
+namespace {
+
+void read_descriptor_into(Reader& r, std::size_t depth) {
+  if (depth > kMaxTypeDepth) r.fail("type descriptor nested deeper than 32 levels");
+  const auto code = static_cast<TypeCode>(r.u8());
+  switch (code) {
+    case TypeCode::void_type:
+    case TypeCode::boolean:
+    case TypeCode::byte:
+    case TypeCode::short_int:
+    case TypeCode::int32:
+    case TypeCode::int64:
+    case TypeCode::float32:
+    case TypeCode::float64:
+    case TypeCode::string:
+    case TypeCode::binary:
+    case TypeCode::stream:
+    case TypeCode::event:
+    case TypeCode::exception:
+    case TypeCode::remote:
+      return;
+    case TypeCode::sequence:
+      read_descriptor_into(r, depth + 1);
+      return;
+    case TypeCode::enumeration:
+    case TypeCode::valued:
+      (void)r.str_view();
+      return;
+  }
+  r.fail(fmt::format("unknown type code 0x{:02X}", static_cast<unsigned>(code)));
+}
+
+std::string describe_from(Reader& r) {
+  const auto code = static_cast<TypeCode>(r.u8());
+  switch (code) {
+    case TypeCode::void_type:
+      return "void";
+    case TypeCode::boolean:
+      return "bool";
+    case TypeCode::byte:
+      return "byte";
+    case TypeCode::short_int:
+      return "short";
+    case TypeCode::int32:
+      return "int";
+    case TypeCode::int64:
+      return "long";
+    case TypeCode::float32:
+      return "float";
+    case TypeCode::float64:
+      return "double";
+    case TypeCode::string:
+      return "string";
+    case TypeCode::binary:
+      return "binary";
+    case TypeCode::stream:
+      return "stream";
+    case TypeCode::event:
+      return "event";
+    case TypeCode::exception:
+      return "exception";
+    case TypeCode::remote:
+      return "remote";
+    case TypeCode::sequence:
+      return "sequence<" + describe_from(r) + ">";
+    case TypeCode::enumeration:
+      return "enum " + r.str();
+    case TypeCode::valued:
+      return "valued " + r.str();
+  }
+  return fmt::format("type 0x{:02X}", static_cast<unsigned>(code));
+}
+
+}  // namespace
+
+std::span<const std::byte> read_descriptor(Reader& r) {
+  const std::size_t start = r.position();
+  read_descriptor_into(r, 0);
+  return r.span_from(start);
+}
+
+std::string describe(std::span<const std::byte> descriptor) {
+  try {
+    Reader r(descriptor);
+    return describe_from(r);
+  } catch (const Error&) {
+    return "malformed type";
+  }
+}
+
+void skip_value(Reader& r, std::span<const std::byte> descriptor) {
+  Reader d(descriptor);
+  const auto code = static_cast<TypeCode>(d.u8());
+  switch (code) {
+    case TypeCode::void_type:
+      return;
+    case TypeCode::boolean:
+    case TypeCode::byte:
+      (void)r.raw(1);
+      return;
+    case TypeCode::short_int:
+      (void)r.raw(2);
+      return;
+    case TypeCode::int32:
+    case TypeCode::float32:
+    case TypeCode::enumeration:
+    case TypeCode::stream:
+      (void)r.raw(4);
+      return;
+    case TypeCode::int64:
+    case TypeCode::float64:
+      (void)r.raw(8);
+      return;
+    case TypeCode::string:
+    case TypeCode::binary:
+      (void)r.raw(r.count(1, "string"));
+      return;
+    case TypeCode::remote:
+      for (int i = 0; i < 3; ++i) (void)r.raw(r.count(1, "string"));
+      return;
+    case TypeCode::sequence: {
+      if (++r.depth > kMaxTypeDepth) r.fail("values nested deeper than 32 levels");
+      const auto element = d.rest();
+      const std::size_t n = r.count(1, "sequence");
+      for (std::size_t i = 0; i < n; ++i) skip_value(r, element);
+      --r.depth;
+      return;
+    }
+    case TypeCode::event:
+    case TypeCode::exception: {
+      (void)r.raw(r.count(1, "string"));
+      if (code == TypeCode::exception) (void)r.raw(r.count(1, "string"));
+      const std::size_t n = r.count(9, "property list");
+      for (std::size_t i = 0; i < n; ++i) {
+        (void)r.raw(r.count(1, "string"));
+        (void)read_descriptor(r);
+        (void)r.raw(r.count(1, "property value"));
+      }
+      return;
+    }
+    case TypeCode::valued:
+      r.fail("cannot skip a valued " + describe(descriptor) + " without its definition");
+  }
+  r.fail(fmt::format("unknown type code 0x{:02X}", static_cast<unsigned>(code)));
+}
+
+}  // namespace icars::planet

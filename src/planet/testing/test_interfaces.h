@@ -1,0 +1,120 @@
+// Interfaces and servants shared by the PLANET tests, the test server process and benchmarks.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "icars/planet/event.h"
+#include "icars/planet/servant.h"
+
+namespace planet_test {
+
+enum class Color { red = 1, green = 2, blue = 3 };
+struct Pose {
+  double x = 0;
+  double y = 0;
+  double theta = 0;
+  bool operator==(const Pose&) const = default;
+};
+struct Reading {
+  std::string sensor;
+  std::vector<Pose> path;
+  Color color = Color::red;
+  std::int64_t stamp = 0;
+  bool operator==(const Reading&) const = default;
+};
+
+}  // namespace planet_test
+
+PLANET_ENUM(planet_test::Color);
+PLANET_VALUED(planet_test::Pose, x, y, theta);
+PLANET_VALUED(planet_test::Reading, sensor, path, color, stamp);
+
+namespace planet_test {
+
+namespace p = icars::planet;
+
+// Echoes every PLANET type back, and a few operations the tests need.
+struct Echo {
+  static constexpr std::string_view type_id = "test::Echo";
+  static constexpr p::Operation<void()> ping{"ping"};
+  static constexpr p::Operation<bool(bool)> echo_bool{"echo_bool"};
+  static constexpr p::Operation<std::uint8_t(std::uint8_t)> echo_byte{"echo_byte"};
+  static constexpr p::Operation<std::int16_t(std::int16_t)> echo_short{"echo_short"};
+  static constexpr p::Operation<std::int32_t(std::int32_t)> echo_int{"echo_int"};
+  static constexpr p::Operation<std::int64_t(std::int64_t)> echo_long{"echo_long"};
+  static constexpr p::Operation<float(float)> echo_float{"echo_float"};
+  static constexpr p::Operation<double(double)> echo_double{"echo_double"};
+  static constexpr p::Operation<std::string(std::string)> echo_string{"echo_string"};
+  static constexpr p::Operation<p::Binary(p::Binary)> echo_binary{"echo_binary"};
+  static constexpr p::Operation<p::StreamRef(p::StreamRef)> echo_stream{"echo_stream"};
+  static constexpr p::Operation<Color(Color)> echo_enum{"echo_enum"};
+  static constexpr p::Operation<Pose(Pose)> echo_pose{"echo_pose"};
+  static constexpr p::Operation<Reading(Reading)> echo_reading{"echo_reading"};
+  static constexpr p::Operation<p::Event(p::Event)> echo_event{"echo_event"};
+  static constexpr p::Operation<p::RemoteException(p::RemoteException)> echo_exception{
+      "echo_exception"};
+  static constexpr p::Operation<p::ObjectRef(p::ObjectRef)> echo_remote{"echo_remote"};
+  static constexpr p::Operation<std::vector<bool>(std::vector<bool>)> echo_bools{"echo_bools"};
+  static constexpr p::Operation<std::vector<std::uint8_t>(std::vector<std::uint8_t>)> echo_bytes{
+      "echo_bytes"};
+  static constexpr p::Operation<std::vector<std::int16_t>(std::vector<std::int16_t>)> echo_shorts{
+      "echo_shorts"};
+  static constexpr p::Operation<std::vector<std::int32_t>(std::vector<std::int32_t>)> echo_ints{
+      "echo_ints"};
+  static constexpr p::Operation<std::vector<std::int64_t>(std::vector<std::int64_t>)> echo_longs{
+      "echo_longs"};
+  static constexpr p::Operation<std::vector<float>(std::vector<float>)> echo_floats{"echo_floats"};
+  static constexpr p::Operation<std::vector<double>(std::vector<double>)> echo_doubles{
+      "echo_doubles"};
+  static constexpr p::Operation<std::vector<std::string>(std::vector<std::string>)> echo_strings{
+      "echo_strings"};
+  static constexpr p::Operation<std::vector<p::Binary>(std::vector<p::Binary>)> echo_binaries{
+      "echo_binaries"};
+  static constexpr p::Operation<std::vector<Color>(std::vector<Color>)> echo_enums{"echo_enums"};
+  static constexpr p::Operation<std::vector<Pose>(std::vector<Pose>)> echo_poses{"echo_poses"};
+  static constexpr p::Operation<std::vector<p::Event>(std::vector<p::Event>)> echo_events{
+      "echo_events"};
+  static constexpr p::Operation<std::vector<p::ObjectRef>(std::vector<p::ObjectRef>)>
+      echo_remotes{"echo_remotes"};
+  static constexpr p::Operation<std::vector<std::vector<std::vector<std::int32_t>>>(
+      std::vector<std::vector<std::vector<std::int32_t>>>)>
+      echo_nested{"echo_nested"};
+  static constexpr p::Operation<std::int32_t(std::int32_t, std::string, double)> mix{"mix"};
+
+  static constexpr p::Operation<std::int64_t(p::Binary)> size_of{"size_of"};
+  static constexpr p::Operation<p::Binary(std::int32_t)> make_binary{"make_binary"};
+  // Raises a RemoteException of type "test::Refused" with the given message.
+  static constexpr p::Operation<void(std::string)> refuse{"refuse"};
+  // Raises a plain std::runtime_error.
+  static constexpr p::Operation<void()> crash{"crash"};
+  // Counts one-way notifications; `counted` reads the count.
+  static constexpr p::OneWay<std::int32_t> count{"count"};
+  static constexpr p::Operation<std::int64_t()> counted{"counted"};
+  // Blocks the servant's io thread: only for tests of what a stuck peer looks like.
+  static constexpr p::Operation<void(std::int32_t)> block_ms{"block_ms"};
+  // Calls `Callback::notify_me` on the object passed by reference, over the caller's link, and
+  // returns what it answered.
+  static constexpr p::Operation<std::string(p::ObjectRef, std::string)> call_back{"call_back"};
+  // The PUN the server sees for the calling connection.
+  static constexpr p::Operation<std::string()> caller_pun{"caller_pun"};
+};
+
+struct Callback {
+  static constexpr std::string_view type_id = "test::Callback";
+  static constexpr p::Operation<std::string(std::string)> notify_me{"notify_me"};
+};
+
+}  // namespace planet_test
+namespace icars::planet {
+class Communicator;
+}  // namespace icars::planet
+namespace planet_test {
+
+// The Echo servant. `communicator` is needed for call_back (it calls the caller's object).
+std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator);
+
+}  // namespace planet_test
