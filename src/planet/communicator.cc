@@ -36,10 +36,11 @@ Communicator::Communicator(CommunicatorOptions options)
                            : std::make_shared<spdlog::logger>(
                                  options_.name,
                                  std::make_shared<spdlog::sinks::stderr_color_sink_mt>())),
+      io_(std::make_shared<asio::io_context>()),
       work_(std::make_unique<asio::executor_work_guard<asio::io_context::executor_type>>(
-          io_.get_executor())),
+          io_->get_executor())),
       manager_(std::make_unique<ConnectionManager>(io_, static_cast<MessageHandler&>(*this), options_.connection, log_)),
-      sweep_timer_(std::make_unique<asio::steady_timer>(io_)) {
+      sweep_timer_(std::make_unique<asio::steady_timer>(*io_)) {
   if (!options_.pun.empty()) manager_->set_local_pun(options_.pun);
   std::promise<std::thread::id> started;
   auto id = started.get_future();
@@ -47,7 +48,7 @@ Communicator::Communicator(CommunicatorOptions options)
     started.set_value(std::this_thread::get_id());
     for (;;) {
       try {
-        io_.run();
+        io_->run();
         return;
       } catch (const std::exception& e) {  // a handler threw: log it and keep the loop alive
         log_->error("unhandled exception on the io thread: {}", e.what());
@@ -55,19 +56,19 @@ Communicator::Communicator(CommunicatorOptions options)
     }
   });
   io_thread_id_ = id.get();
-  asio::post(io_, [this] { sweep_deadlines(); });
+  asio::post(*io_, [this] { sweep_deadlines(); });
 }
 
 Communicator::~Communicator() {
   manager_->shutdown();
-  asio::post(io_, [this] { sweep_timer_->cancel(); });
+  asio::post(*io_, [this] { sweep_timer_->cancel(); });
   work_.reset();
   // Everything was closed above; give pending handlers a moment to run, then stop the loop.
   auto stopper = std::async(std::launch::async, [this] {
-    for (int i = 0; i < 200 && !io_.stopped(); ++i) {
+    for (int i = 0; i < 200 && !io_->stopped(); ++i) {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
     }
-    io_.stop();
+    io_->stop();
   });
   io_thread_.join();
   stopper.wait();
@@ -146,13 +147,15 @@ std::size_t Communicator::pending_calls() const {
   return pending_.size();
 }
 
-void Communicator::complete(std::uint32_t request_id, std::exception_ptr error, Reader* result) {
+void Communicator::complete(const Connection& from, std::uint32_t request_id,
+                            std::exception_ptr error, Reader* result) {
   Completion done;
   {
     std::lock_guard lock(pending_mutex_);
     auto it = pending_.find(request_id);
-    if (it == pending_.end()) {
-      log_->debug("reply to unknown or expired request {} dropped", request_id);
+    if (it == pending_.end() || it->second.connection_id != from.id()) {
+      log_->debug("reply to unknown or expired request {} from {} dropped", request_id,
+                  from.describe());
       return;
     }
     done = std::move(it->second.done);
@@ -194,7 +197,7 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
         return;
       case RmiCode::reply:
         request_id = r.u32();
-        complete(request_id, nullptr, &r);
+        complete(*c, request_id, nullptr, &r);
         return;
       case RmiCode::error: {
         request_id = r.u32();
@@ -210,7 +213,7 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
                                                 exception.remote_message() + " (reported by " +
                                                     c->describe() + ")"));
         }
-        complete(request_id, error, nullptr);
+        complete(*c, request_id, error, nullptr);
         return;
       }
       case RmiCode::stream: {
@@ -225,9 +228,9 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
   } catch (const Error& e) {
     log_->warn("malformed {} message from {} dropped: {}", to_string(code), c->describe(),
                e.what());
-    if (code == RmiCode::reply && request_id != 0) {
-      // The caller still learns why: the reply it waited for could not be read.
-      complete(request_id, std::make_exception_ptr(e), nullptr);
+    if ((code == RmiCode::reply || code == RmiCode::error) && request_id != 0) {
+      // The caller still learns why: the answer it waited for could not be read.
+      complete(*c, request_id, std::make_exception_ptr(e), nullptr);
     }
   }
 }
@@ -241,7 +244,7 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
     method = r.str_view();
   } catch (const Error& e) {
     log_->warn("malformed request header from {}: {}", c->describe(), e.what());
-    if (!oneway) send_error(c, request_id, ErrorKind::bad_data, "planet::BadData", e.what());
+    if (!oneway) send_error(c, request_id, ErrorKind::bad_data, "planet::BadData", e.message());
     return;
   }
   auto servant = adapter_.find(path);
@@ -262,53 +265,58 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
   try {
     auto pending = servant->dispatch(method, r, oneway ? nullptr : &w, current);
     if (pending) {
-      finish_async(c, oneway ? 0 : request_id, std::string(path), std::string(method),
+      finish_async(c, oneway, request_id, std::string(path), std::string(method),
                    std::move(*pending));
       return;
     }
   } catch (...) {
-    report_failure(c, oneway ? 0 : request_id, path, method, std::current_exception());
+    report_failure(c, oneway, request_id, path, method, std::current_exception());
     return;
   }
   if (oneway) return;
-  try {
-    c->send(std::move(reply));
-  } catch (const Error& e) {
-    log_->warn("reply to request {} on '{}' not sent: {}", request_id, path, e.what());
-  }
+  send_reply(c, request_id, path, std::move(reply));
 }
 
-void Communicator::finish_async(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
-                                std::string path, std::string method,
+void Communicator::finish_async(const std::shared_ptr<Connection>& c, bool oneway,
+                                std::uint32_t request_id, std::string path, std::string method,
                                 Servant::AsyncResult work) {
-  asio::co_spawn(io_, std::move(work),
-                 [this, c, request_id, path = std::move(path), method = std::move(method)](
-                     std::exception_ptr e, std::vector<std::byte> result) {
+  asio::co_spawn(*io_, std::move(work),
+                 [this, c, oneway, request_id, path = std::move(path),
+                  method = std::move(method)](std::exception_ptr e,
+                                              std::vector<std::byte> result) {
                    if (e) {
-                     report_failure(c, request_id, path, method, e);
+                     report_failure(c, oneway, request_id, path, method, e);
                      return;
                    }
-                   if (request_id == 0) return;
+                   if (oneway) return;
                    std::vector<std::byte> reply;
                    reply.reserve(5 + result.size());
                    Writer w(reply);
                    w.u8(static_cast<std::uint8_t>(RmiCode::reply));
                    w.u32(request_id);
                    w.raw(result);
-                   try {
-                     c->send(std::move(reply));
-                   } catch (const Error& err) {
-                     log_->warn("reply to request {} on '{}' not sent: {}", request_id, path,
-                                err.what());
-                   }
+                   send_reply(c, request_id, path, std::move(reply));
                  });
 }
 
-// Answers a failed request with ERROR (a NOTIFY, request_id 0, only logs it).
-void Communicator::report_failure(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
-                                  std::string_view path, std::string_view method,
-                                  const std::exception_ptr& failure) {
-  const bool oneway = request_id == 0;
+// Sends a REPLY; when it cannot be queued (too large, queue full), the caller gets an ERROR
+// saying so instead of waiting for its deadline.
+void Communicator::send_reply(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                              std::string_view path, std::vector<std::byte> reply) {
+  try {
+    c->send(std::move(reply));
+  } catch (const Error& e) {
+    log_->warn("reply to request {} on '{}' not sent: {}", request_id, path, e.what());
+    if (e.kind() == ErrorKind::overloaded) {
+      send_error(c, request_id, ErrorKind::overloaded, "planet::ReplyNotSent", e.message());
+    }
+  }
+}
+
+// Answers a failed request with ERROR (a failed NOTIFY is only logged).
+void Communicator::report_failure(const std::shared_ptr<Connection>& c, bool oneway,
+                                  std::uint32_t request_id, std::string_view path,
+                                  std::string_view method, const std::exception_ptr& failure) {
   try {
     std::rethrow_exception(failure);
   } catch (const RemoteException& e) {
@@ -367,8 +375,7 @@ void Communicator::on_message_refused(const std::shared_ptr<Connection>& c,
     if (static_cast<RmiCode>(r.u8()) != RmiCode::call) return;
     send_error(c, r.u32(), ErrorKind::overloaded, "planet::MessageTooLarge", reason);
   } catch (const Error&) {
-    // Too little of the message arrived to name the request; the sender learns of the refusal
-    // from DATA_ACK(no more) and fails the call itself.
+    // Too little of the message arrived to name the request; the caller's deadline ends it.
   }
 }
 

@@ -45,8 +45,8 @@ void ConnectionOptions::validate() const {
   if (receive_budget < max_message_size) {
     throw std::invalid_argument("receive_budget must be at least max_message_size");
   }
-  if (max_incomplete_messages == 0) {
-    throw std::invalid_argument("max_incomplete_messages must be > 0");
+  if (max_incomplete_messages < kMaxInterleavedMessages) {
+    throw std::invalid_argument("max_incomplete_messages must be at least 16 (protocol minimum)");
   }
 }
 
@@ -56,6 +56,7 @@ struct Connection::Outgoing {
   std::size_t offset = 0;  // bytes already framed
   std::uint32_t next_frame = 0;
   std::uint32_t credit = kWindowFrames;  // frames that may be sent before the next DATA_ACK
+  bool aborted = false;  // refused by the peer: only an empty final frame is still sent
   SendHandler on_sent;
 };
 
@@ -70,10 +71,12 @@ struct Connection::Incoming {
 
 std::atomic<std::uint64_t> Connection::next_id_{1};
 
-Connection::Connection(asio::ip::tcp::socket socket, ConnectionRole role, std::string local_pun,
+Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::socket socket,
+                       ConnectionRole role, std::string local_pun,
                        const ConnectionOptions& options, MessageHandler& handler,
                        std::shared_ptr<spdlog::logger> logger, Acceptor acceptor)
-    : socket_(std::move(socket)),
+    : io_(std::move(io)),
+      socket_(std::move(socket)),
       timer_(socket_.get_executor()),
       role_(role),
       local_pun_(std::move(local_pun)),
@@ -84,6 +87,10 @@ Connection::Connection(asio::ip::tcp::socket socket, ConnectionRole role, std::s
       id_(next_id_.fetch_add(1)),
       rbuf_(kReadBufferSize) {
   options_.validate();
+  if (local_pun_.size() > kMaxControlPayload - 16) {
+    throw std::invalid_argument("PUN longer than " + std::to_string(kMaxControlPayload - 16) +
+                                " bytes");
+  }
   std::error_code ec;
   socket_.set_option(asio::ip::tcp::no_delay(true), ec);
   const auto remote = socket_.remote_endpoint(ec);
@@ -191,8 +198,7 @@ bool Connection::try_direct_send_locked(Outgoing& msg) {
     const std::size_t payload_from = written < kFrameHeaderSize ? 0 : written - kFrameHeaderSize;
     std::memcpy(rest.data() + from_header, msg.payload.data() + payload_from,
                 msg.payload.size() - payload_from);
-    stats_.bytes_sent -= rest.size();  // counted again when written
-    --stats_.frames_sent;
+    --stats_.frames_sent;  // the rest counts as the frame when written
     control_.push_front(std::move(rest));
     schedule_write_locked();
   }
@@ -206,6 +212,15 @@ void Connection::send_control(FrameCode code, std::vector<std::byte> payload, st
   h.code = code;
   std::lock_guard lock(send_mutex_);
   if (!send_open_) return;
+  if (control_.size() >= kMaxQueuedControlFrames) {
+    send_open_ = false;
+    asio::post(socket_.get_executor(), [self = shared_from_this()] {
+      self->fail(ErrorKind::overloaded,
+                 fmt::format("{} does not read: {} control frames queued", self->describe(),
+                             kMaxQueuedControlFrames));
+    });
+    return;
+  }
   control_.push_back(frame_bytes(h, payload));
   schedule_write_locked();
 }
@@ -236,22 +251,30 @@ void Connection::write_batch() {
     ++batch_frames_;
   }
   // Then one frame from each message with credit, in turn, so no message monopolises the link.
+  // A multi-frame message is only started while fewer than kMaxInterleavedMessages are in
+  // progress, so the receiver's interleaving limit is never exceeded.
+  std::size_t in_progress = 0;
+  for (const auto& m : messages_) in_progress += m.next_frame > 0 ? 1 : 0;
   bool progress = true;
   while (progress && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames) {
     progress = false;
     for (auto it = messages_.begin();
          it != messages_.end() && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames;) {
       Outgoing& m = *it;
-      if (m.credit == 0) {
+      const bool single_frame = m.payload.size() <= kMaxFramePayload;
+      if ((m.credit == 0 && !m.aborted) ||
+          (m.next_frame == 0 && !single_frame && in_progress >= kMaxInterleavedMessages)) {
         ++it;
         continue;
       }
-      const std::size_t n = std::min(kMaxFramePayload, m.payload.size() - m.offset);
+      if (m.next_frame == 0 && !single_frame) ++in_progress;
+      const std::size_t n =
+          m.aborted ? 0 : std::min(kMaxFramePayload, m.payload.size() - m.offset);
       FrameHeader h;
       h.length = static_cast<std::uint32_t>(kFrameHeaderSize + n);
       h.msg_no = m.msg_no;
       h.frame_no = m.next_frame++;
-      h.final = m.offset + n == m.payload.size();
+      h.final = m.aborted || m.offset + n == m.payload.size();
       h.code = FrameCode::data;
       batch_headers_.push_back(encode_header(h));
       batch_.emplace_back(asio::buffer(batch_headers_.back()));
@@ -263,7 +286,8 @@ void Connection::write_batch() {
       ++batch_frames_;
       progress = true;
       if (h.final) {
-        batch_done_.push_back(std::move(m));
+        if (m.next_frame > 1 && !single_frame) --in_progress;
+        (m.aborted ? retired_ : batch_done_).push_back(std::move(m));
         it = messages_.erase(it);
       } else {
         ++it;
@@ -357,7 +381,7 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
         std::vector<std::byte> payload;
         Writer w(payload);
         w.u8(kConnectDeny);
-        w.str(parsed.error);
+        w.str(parsed.error.substr(0, kMaxControlPayload - 16));
         send_control(FrameCode::connect_ack, std::move(payload));
         log_->warn("denied {}: {}", remote_address_, parsed.error);
         close_after_flush_ = true;
@@ -425,6 +449,7 @@ bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte>
                 h.version_minor, kProtocolMajor, kProtocolMinor);
   }
   if (acceptor_) deny = acceptor_(pun);
+  if (deny && deny->size() > kMaxControlPayload - 16) deny->resize(kMaxControlPayload - 16);
   std::vector<std::byte> reply;
   Writer w(reply);
   if (deny) {
@@ -443,6 +468,7 @@ bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte>
   }
   send_control(FrameCode::connect_ack, std::move(reply));
   state_ = State::open;
+  was_open_ = true;
   arm_timer();
   handler_.on_open(shared_from_this());
   return state_.load() != State::closed;
@@ -472,6 +498,7 @@ bool Connection::handle_connect_ack(std::span<const std::byte> payload) {
     peer_pun_ = std::move(text);
   }
   state_ = State::open;
+  was_open_ = true;
   arm_timer();
   handler_.on_open(shared_from_this());
   return state_.load() != State::closed;
@@ -488,6 +515,10 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
 
   if (h.frame_no == 0) {
     if (in) return protocol_error(fmt::format("message #{} started twice", h.msg_no));
+    if (h.final && payload.size() > options_.max_message_size) {
+      return protocol_error(fmt::format("message #{} of {} bytes exceeds max_message_size ({})",
+                                        h.msg_no, payload.size(), options_.max_message_size));
+    }
     if (h.final) {  // the common case: a whole message in one frame, delivered without copying
       {
         std::lock_guard lock(send_mutex_);
@@ -566,10 +597,14 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
 // Sends the acks that the receive budget allows, oldest message first. The oldest incomplete
 // message always gets its acks, so two large messages can never wait on each other.
 void Connection::release_deferred_acks() {
-  for (std::size_t i = 0; i < incoming_.size(); ++i) {
-    Incoming& in = *incoming_[i];
-    while (in.owed_acks > 0 && !in.refused &&
-           (i == 0 || incomplete_bytes_.load() <= options_.receive_budget)) {
+  bool oldest = true;
+  for (const auto& entry : incoming_) {
+    Incoming& in = *entry;
+    if (in.refused) continue;
+    const bool privileged = oldest;
+    oldest = false;
+    while (in.owed_acks > 0 &&
+           (privileged || incomplete_bytes_.load() <= options_.receive_budget)) {
       --in.owed_acks;
       in.granted += kAckEvery;
       std::vector<std::byte> ack;
@@ -609,11 +644,13 @@ bool Connection::handle_data_ack(std::span<const std::byte> payload) {
       schedule_write_locked();
       return true;
     }
+    if (it->aborted) return true;
+    // The message ends with an empty final frame, so the receiver can forget it.
     refused = true;
     queued_bytes_ -= std::min(queued_bytes_, it->payload.size() - it->offset);
     refused_handler = std::move(it->on_sent);
-    retired_.push_back(std::move(*it));
-    messages_.erase(it);
+    it->aborted = true;
+    schedule_write_locked();
   }
   if (refused) {
     log_->warn("{} refused message #{} (too large for its max_message_size)", describe(), msg_no);

@@ -19,12 +19,13 @@ struct ConnectionManager::Acceptor {
 
 Peer::Peer(ConnectionManager& manager, std::string host, std::uint16_t port, ReconnectPolicy policy)
     : manager_(manager),
+      io_(manager.shared_io()),
       host_(std::move(host)),
       port_(port),
       policy_(policy),
       delay_(policy.initial_delay),
-      resolver_(manager.io()),
-      timer_(manager.io()) {}
+      resolver_(*io_),
+      timer_(*io_) {}
 
 std::shared_ptr<Connection> Peer::connection() const {
   std::lock_guard lock(mutex_);
@@ -61,23 +62,29 @@ void Peer::stop() {
     stopped_ = true;
   }
   changed_.notify_all();
-  asio::post(manager_.io(), [self = shared_from_this()] {
-    self->timer_.cancel();
-    self->resolver_.cancel();
-    if (self->connecting_) {
-      std::error_code ignored;
-      self->connecting_->close(ignored);
-    }
-    std::shared_ptr<Connection> a;
-    std::shared_ptr<Connection> b;
-    {
-      std::lock_guard lock(self->mutex_);
-      a = self->current_;
-      b = self->handshaking_;
-    }
-    if (a) a->close("peer stopped");
-    if (b) b->close("peer stopped");
-  });
+  if (io_->get_executor().running_in_this_thread()) {
+    stop_on_io();
+  } else {
+    asio::post(*io_, [self = shared_from_this()] { self->stop_on_io(); });
+  }
+}
+
+void Peer::stop_on_io() {
+  timer_.cancel();
+  resolver_.cancel();
+  if (connecting_) {
+    std::error_code ignored;
+    connecting_->close(ignored);
+  }
+  std::shared_ptr<Connection> a;
+  std::shared_ptr<Connection> b;
+  {
+    std::lock_guard lock(mutex_);
+    a = current_;
+    b = handshaking_;
+  }
+  if (a) a->close("peer stopped");
+  if (b) b->close("peer stopped");
 }
 
 void Peer::attempt() {
@@ -93,7 +100,7 @@ void Peer::attempt() {
           self->retry_later(fmt::format("cannot resolve {}: {}", self->host_, ec.message()));
           return;
         }
-        auto socket = std::make_shared<asio::ip::tcp::socket>(self->manager_.io());
+        auto socket = std::make_shared<asio::ip::tcp::socket>(*self->io_);
         self->connecting_ = socket;
         self->timer_.expires_after(self->policy_.connect_timeout);
         self->timer_.async_wait([socket](const std::error_code& tec) {
@@ -172,10 +179,10 @@ void Peer::on_close(const std::shared_ptr<Connection>& c, const std::string& rea
 
 // --- ConnectionManager ---------------------------------------------------------------------
 
-ConnectionManager::ConnectionManager(asio::io_context& io, MessageHandler& upper,
+ConnectionManager::ConnectionManager(std::shared_ptr<asio::io_context> io, MessageHandler& upper,
                                      const ConnectionOptions& options,
                                      std::shared_ptr<spdlog::logger> logger)
-    : io_(io), upper_(upper), options_(options), log_(std::move(logger)) {
+    : io_(std::move(io)), upper_(upper), options_(options), log_(std::move(logger)) {
   options_.validate();
 }
 
@@ -197,7 +204,7 @@ std::string ConnectionManager::local_pun() const {
 }
 
 std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_t port) {
-  auto acceptor = std::make_shared<Acceptor>(io_);
+  auto acceptor = std::make_shared<Acceptor>(*io_);
   const asio::ip::tcp::endpoint endpoint(asio::ip::make_address(address), port);
   acceptor->socket.open(endpoint.protocol());
   acceptor->socket.set_option(asio::ip::tcp::acceptor::reuse_address(true));
@@ -209,7 +216,7 @@ std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_
     if (local_pun_.empty()) local_pun_ = fmt::format("{}:{}", address, bound);
     acceptors_.push_back(acceptor);
   }
-  asio::post(io_, [this, acceptor] { accept_next(acceptor); });
+  asio::post(*io_, [this, acceptor] { accept_next(acceptor); });
   log_->info("listening on {}:{}", address, bound);
   return bound;
 }
@@ -242,8 +249,8 @@ std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socke
     const auto local = socket.local_endpoint(ec);
     pun = ec ? "unknown" : fmt::format("{}:{}", local.address().to_string(), local.port());
   }
-  auto connection = std::make_shared<Connection>(std::move(socket), role, std::move(pun), options_,
-                                                 *this, log_, std::move(policy));
+  auto connection = std::make_shared<Connection>(io_, std::move(socket), role, std::move(pun),
+                                                 options_, *this, log_, std::move(policy));
   {
     std::lock_guard lock(mutex_);
     connections_.emplace(connection->id(), connection);
@@ -260,7 +267,7 @@ std::shared_ptr<Peer> ConnectionManager::connect(const std::string& host, std::u
     std::lock_guard lock(mutex_);
     peers_.push_back(peer);
   }
-  asio::post(io_, [peer] { peer->attempt(); });
+  asio::post(*io_, [peer] { peer->attempt(); });
   return peer;
 }
 
@@ -341,19 +348,19 @@ void ConnectionManager::on_close(const std::shared_ptr<Connection>& c, const Err
   upper_.on_close(c, reason);
   if (owner) {
     owner->on_close(c, reason.what());
-  } else if (!had_owner && !c->peer_pun().empty()) {
+  } else if (!had_owner && c->was_open()) {
     notify({LinkEventKind::disconnected, c, nullptr, reason.what()});
   }
 }
 
 void ConnectionManager::shutdown() {
-  if (io_.get_executor().running_in_this_thread() || io_.stopped()) {
+  if (io_->get_executor().running_in_this_thread() || io_->stopped()) {
     shutdown_on_io();
     return;
   }
   std::promise<void> done;
   auto finished = done.get_future();
-  asio::post(io_, [this, &done] {
+  asio::post(*io_, [this, &done] {
     shutdown_on_io();
     done.set_value();
   });

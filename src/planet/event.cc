@@ -18,9 +18,14 @@ Value Value::decode(Reader& r) {
   const auto descriptor = read_descriptor(r);
   const std::size_t n = r.count(1, "property value");
   const auto value = r.raw(n);
-  // The value must be exactly one well-formed value of its type (valued types are checked when
-  // read with as<T>(), since their layout is only known to code that has the definition).
-  if (std::to_integer<std::uint8_t>(descriptor[0]) !=
+  // The value must be exactly one well-formed value of its type (values containing valued types
+  // are checked when read with as<T>(), since only code with the definition knows the layout).
+  std::size_t base = 0;  // descriptors nest only through sequence: find the element type
+  while (base + 1 < descriptor.size() && std::to_integer<std::uint8_t>(descriptor[base]) ==
+                                             static_cast<std::uint8_t>(TypeCode::sequence)) {
+    ++base;
+  }
+  if (std::to_integer<std::uint8_t>(descriptor[base]) !=
       static_cast<std::uint8_t>(TypeCode::valued)) {
     Reader check(value);
     check.depth = r.depth;

@@ -51,9 +51,16 @@ void read_descriptor_into(Reader& r, std::size_t depth) {
     case TypeCode::exception:
     case TypeCode::remote:
       return;
-    case TypeCode::sequence:
+    case TypeCode::sequence: {
+      const std::size_t element_at = r.position();
       read_descriptor_into(r, depth + 1);
+      // Zero-size elements would let a short message claim billions of items.
+      if (std::to_integer<std::uint8_t>(r.span_from(element_at)[0]) ==
+          static_cast<std::uint8_t>(TypeCode::void_type)) {
+        r.fail("sequence<void> is not a valid type");
+      }
       return;
+    }
     case TypeCode::enumeration:
     case TypeCode::valued:
       (void)r.str_view();

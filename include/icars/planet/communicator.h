@@ -47,8 +47,8 @@ class Communicator final : private MessageHandler {
 
   ObjectAdapter& adapter() { return adapter_; }
   ConnectionManager& connections() { return *manager_; }
-  asio::io_context& io() { return io_; }
-  asio::io_context::executor_type executor() { return io_.get_executor(); }
+  asio::io_context& io() { return *io_; }
+  asio::io_context::executor_type executor() { return io_->get_executor(); }
   bool in_io_thread() const { return io_thread_id_ == std::this_thread::get_id(); }
   spdlog::logger& log() { return *log_; }
   const CommunicatorOptions& options() const { return options_; }
@@ -87,20 +87,23 @@ class Communicator final : private MessageHandler {
   void on_close(const std::shared_ptr<Connection>& c, const Error& reason) override;
 
   void dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway);
-  void finish_async(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+  void finish_async(const std::shared_ptr<Connection>& c, bool oneway, std::uint32_t request_id,
                     std::string path, std::string method, Servant::AsyncResult work);
-  void report_failure(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+  void report_failure(const std::shared_ptr<Connection>& c, bool oneway, std::uint32_t request_id,
                       std::string_view path, std::string_view method,
                       const std::exception_ptr& failure);
+  void send_reply(const std::shared_ptr<Connection>& c, std::uint32_t request_id,
+                  std::string_view path, std::vector<std::byte> reply);
   void send_error(const std::shared_ptr<Connection>& c, std::uint32_t request_id, ErrorKind kind,
                   const std::string& type_id, const std::string& message,
                   const Properties& properties = {});
-  void complete(std::uint32_t request_id, std::exception_ptr error, Reader* result);
+  void complete(const Connection& from, std::uint32_t request_id, std::exception_ptr error,
+                Reader* result);
   void sweep_deadlines();
 
   CommunicatorOptions options_;
   std::shared_ptr<spdlog::logger> log_;
-  asio::io_context io_;
+  std::shared_ptr<asio::io_context> io_;
   std::unique_ptr<asio::executor_work_guard<asio::io_context::executor_type>> work_;
   std::unique_ptr<ConnectionManager> manager_;
   ObjectAdapter adapter_;

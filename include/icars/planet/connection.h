@@ -37,6 +37,12 @@ namespace icars::planet {
 // grants kAckEvery more. Fixed by protocol version 1 (docs/protocol.md, "Flow control").
 inline constexpr std::uint32_t kWindowFrames = 8;
 inline constexpr std::uint32_t kAckEvery = kWindowFrames / 2;
+// Multi-frame messages a sender may have started and not finished on one connection; a
+// receiver must accept at least this many interleaved incomplete messages.
+inline constexpr std::size_t kMaxInterleavedMessages = 16;
+// Control frames (acks, heartbeats) queued but unwritten; beyond this the peer is not reading
+// and the connection is closed.
+inline constexpr std::size_t kMaxQueuedControlFrames = 4096;
 
 struct ConnectionOptions {
   std::chrono::milliseconds heartbeat_interval{1000};  // a HEARTBEAT is sent this often
@@ -47,6 +53,7 @@ struct ConnectionOptions {
   std::size_t receive_budget = 128u << 20;     // bytes of incomplete incoming messages before
                                                // acks are held back (only the oldest proceeds)
   std::size_t max_incomplete_messages = 256;   // interleaved incoming messages per connection
+                                               // (at least kMaxInterleavedMessages)
 
   void validate() const;  // throws std::invalid_argument naming the bad option
 };
@@ -99,7 +106,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   // Decides whether a server accepts a client: nullopt accepts, a string denies with that reason.
   using Acceptor = std::function<std::optional<std::string>(const std::string& pun)>;
 
-  Connection(asio::ip::tcp::socket socket, ConnectionRole role, std::string local_pun,
+  Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::socket socket,
+             ConnectionRole role, std::string local_pun,
              const ConnectionOptions& options, MessageHandler& handler,
              std::shared_ptr<spdlog::logger> logger, Acceptor acceptor = {});
   ~Connection() override;
@@ -119,6 +127,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   void close(const std::string& reason);
 
   bool is_open() const { return state_.load() == State::open; }
+  // True once the handshake completed, even after the connection closed.
+  bool was_open() const { return was_open_; }
   ConnectionRole role() const { return role_; }
   std::uint64_t id() const { return id_; }
   const std::string& local_pun() const { return local_pun_; }
@@ -156,6 +166,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
 
   static std::atomic<std::uint64_t> next_id_;
 
+  std::shared_ptr<asio::io_context> io_;  // declared first: outlives the socket and timer
   asio::ip::tcp::socket socket_;
   asio::steady_timer timer_;
   ConnectionRole role_;
@@ -170,6 +181,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::chrono::steady_clock::time_point last_received_;
   std::chrono::steady_clock::time_point opened_at_;
   bool close_after_flush_ = false;
+  bool was_open_ = false;
 
   // Receive side (io thread only).
   std::vector<std::byte> rbuf_;

@@ -71,7 +71,10 @@ class Peer final : public Link, public std::enable_shared_from_this<Peer> {
   void on_open(const std::shared_ptr<Connection>& c);
   void on_close(const std::shared_ptr<Connection>& c, const std::string& reason);
 
+  void stop_on_io();
+
   ConnectionManager& manager_;
+  std::shared_ptr<asio::io_context> io_;  // declared first: outlives the timer and resolver
   std::string host_;
   std::uint16_t port_;
   ReconnectPolicy policy_;
@@ -91,8 +94,10 @@ class Peer final : public Link, public std::enable_shared_from_this<Peer> {
 
 class ConnectionManager final : public MessageHandler {
  public:
-  ConnectionManager(asio::io_context& io, MessageHandler& upper, const ConnectionOptions& options,
-                    std::shared_ptr<spdlog::logger> logger);
+  // `io` is shared with every connection and peer, so one that outlives the manager (held by a
+  // proxy) never refers to a destroyed io_context.
+  ConnectionManager(std::shared_ptr<asio::io_context> io, MessageHandler& upper,
+                    const ConnectionOptions& options, std::shared_ptr<spdlog::logger> logger);
   ~ConnectionManager() override;
 
   // Server role: listens on address:port (port 0 picks a free one) and returns the bound port.
@@ -110,7 +115,8 @@ class ConnectionManager final : public MessageHandler {
   // Server-side connections that completed the handshake, and client links that are up.
   std::vector<std::shared_ptr<Connection>> connections() const;
   const ConnectionOptions& options() const { return options_; }
-  asio::io_context& io() { return io_; }
+  asio::io_context& io() { return *io_; }
+  const std::shared_ptr<asio::io_context>& shared_io() const { return io_; }
   spdlog::logger& log() { return *log_; }
 
   // Stops listening, stops every Peer and closes every connection. Call on the io thread, or
@@ -133,7 +139,7 @@ class ConnectionManager final : public MessageHandler {
   void notify(const ConnectionEvent& event);
   void shutdown_on_io();
 
-  asio::io_context& io_;
+  std::shared_ptr<asio::io_context> io_;
   MessageHandler& upper_;
   ConnectionOptions options_;
   std::shared_ptr<spdlog::logger> log_;

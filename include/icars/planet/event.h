@@ -108,6 +108,7 @@ class Event : public Properties {
 // An exception raised by a servant and re-raised at the caller (PLANET `exception`).
 class RemoteException : public Error {
  public:
+  RemoteException() : RemoteException("", "") {}
   RemoteException(std::string type_id, std::string message, Properties properties = {});
   const std::string& type_id() const { return type_id_; }
   const std::string& remote_message() const { return message_; }

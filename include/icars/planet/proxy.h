@@ -36,6 +36,15 @@
 
 namespace icars::planet {
 
+template <class R>
+struct CompletionSignature {
+  using type = void(std::exception_ptr, R);
+};
+template <>
+struct CompletionSignature<void> {
+  using type = void(std::exception_ptr);
+};
+
 class Proxy {
  public:
   Proxy(Communicator& communicator, std::shared_ptr<Link> link, std::string path)
@@ -44,8 +53,9 @@ class Proxy {
         path_(std::move(path)),
         timeout_(communicator.options().call_timeout) {}
 
-  // A proxy for an object passed by reference. A reference with an empty PUN, or with the PUN
-  // of `via`'s peer, is reached over `via` (the link it arrived on).
+  // A proxy for an object passed by reference, reached over `via` (normally the link the
+  // reference arrived on). The reference's PUN is informational in this version: resolving
+  // a PUN to a new link is left to the application.
   Proxy(Communicator& communicator, std::shared_ptr<Link> via, const ObjectRef& ref)
       : Proxy(communicator, std::move(via), ref.path) {}
 
@@ -104,8 +114,7 @@ class Proxy {
   template <class R, class... A, class Token>
   auto async_call(const Operation<R(A...)>& op, std::type_identity_t<std::tuple<A...>> args,
                   Token&& token) const {
-    using Signature = std::conditional_t<std::is_void_v<R>, void(std::exception_ptr),
-                                         void(std::exception_ptr, R)>;
+    using Signature = typename CompletionSignature<R>::type;
     return asio::async_initiate<Token, Signature>(
         [this, name = op.name()](auto handler, std::tuple<A...> call_args) {
           auto request = std::apply(

@@ -85,9 +85,7 @@ class Writer {
   void u64(std::uint64_t v) { detail::store_be64(grow(8), v); }
   void f32(float v) { u32(std::bit_cast<std::uint32_t>(v)); }
   void f64(double v) { u64(std::bit_cast<std::uint64_t>(v)); }
-  void raw(std::span<const std::byte> bytes) {
-    if (!bytes.empty()) std::memcpy(grow(bytes.size()), bytes.data(), bytes.size());
-  }
+  void raw(std::span<const std::byte> bytes) { out_->insert(out_->end(), bytes.begin(), bytes.end()); }
   void length(std::size_t n);  // u32 length prefix; throws bad_data above 4 GiB - 1
   void str(std::string_view s) {
     length(s.size());

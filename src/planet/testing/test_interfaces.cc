@@ -68,6 +68,12 @@ std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator) {
   s->implement(Echo::crash, [] { throw std::runtime_error("servant crashed on purpose"); });
   s->implement(Echo::count, [counter](std::int32_t n) { *counter += n; });
   s->implement(Echo::counted, [counter] { return counter->load(); });
+  auto absorbed = std::make_shared<std::vector<std::int64_t>>(2, 0);  // io thread only
+  s->implement(Echo::absorb, [absorbed](const p::Binary& b) {
+    (*absorbed)[0] += static_cast<std::int64_t>(b.bytes.size());
+    (*absorbed)[1] += 1;
+  });
+  s->implement(Echo::absorbed, [absorbed] { return *absorbed; });
   s->implement(Echo::block_ms, [](std::int32_t ms) {
     std::this_thread::sleep_for(std::chrono::milliseconds(ms));
   });

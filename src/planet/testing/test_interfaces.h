@@ -94,6 +94,9 @@ struct Echo {
   // Counts one-way notifications; `counted` reads the count.
   static constexpr p::OneWay<std::int32_t> count{"count"};
   static constexpr p::Operation<std::int64_t()> counted{"counted"};
+  // Absorbs one-way binaries; `absorbed` returns the bytes and messages absorbed so far.
+  static constexpr p::OneWay<p::Binary> absorb{"absorb"};
+  static constexpr p::Operation<std::vector<std::int64_t>()> absorbed{"absorbed"};
   // Blocks the servant's io thread: only for tests of what a stuck peer looks like.
   static constexpr p::Operation<void(std::int32_t)> block_ms{"block_ms"};
   // Calls `Callback::notify_me` on the object passed by reference, over the caller's link, and

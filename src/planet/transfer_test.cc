@@ -1,0 +1,256 @@
+// Large messages: frames of concurrent messages interleave on one connection, and flow control
+// bounds the memory of a sender whose receiver stops reading.
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <asio/use_future.hpp>
+#include <cstring>
+#include <future>
+
+#include "child_process.h"
+#include "icars/planet/communicator.h"
+#include "icars/planet/detail/byte_order.h"
+#include "icars/planet/proxy.h"
+#include "test_interfaces.h"
+
+namespace icars::planet {
+namespace {
+
+using namespace std::chrono_literals;
+using planet_test::Echo;
+
+TEST(Transfer, SmallCallsCompleteWhileA50MiBBinaryIsInFlight) {
+  auto server = planet_test::start_test_server();
+  Communicator client;
+  auto peer = client.connect("127.0.0.1", server.port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  Proxy echo(client, peer, "/echo");
+  echo = echo.with_timeout(120s);
+
+  Binary big;
+  big.bytes.resize(50u << 20, std::byte{0x5A});
+  auto big_call = echo.async_call(Echo::size_of, {std::move(big)}, asio::use_future);
+
+  int completed_during_transfer = 0;
+  std::chrono::steady_clock::duration slowest{};
+  while (big_call.wait_for(0s) != std::future_status::ready) {
+    const auto start = std::chrono::steady_clock::now();
+    ASSERT_EQ(echo.call(Echo::echo_int, completed_during_transfer), completed_during_transfer);
+    slowest = std::max(slowest, std::chrono::steady_clock::now() - start);
+    if (big_call.wait_for(0s) != std::future_status::ready) ++completed_during_transfer;
+  }
+  EXPECT_EQ(big_call.get(), std::int64_t{50} << 20);
+  // Without interleaving the first small call would wait for all 3200 frames of the binary.
+  EXPECT_GE(completed_during_transfer, 5) << "small calls were stuck behind the large message";
+  std::cout << "small calls completed during the 50 MiB transfer: " << completed_during_transfer
+            << ", slowest " << std::chrono::duration_cast<std::chrono::microseconds>(slowest).count()
+            << " us\n";
+}
+
+TEST(Transfer, SenderMemoryIsBoundedWhenTheReceiverStopsReadingAndNothingIsLost) {
+  // The receiver is a separate process that we freeze: its socket buffers fill, then our
+  // send queue, and further sends fail with `overloaded` instead of growing memory.
+  auto server = planet_test::start_test_server({"--heartbeat-timeout-ms", "600000"});
+  CommunicatorOptions options;
+  options.connection.send_queue_limit = 4u << 20;
+  options.connection.max_message_size = 1u << 20;
+  options.connection.receive_budget = 4u << 20;
+  options.connection.heartbeat_timeout = 600s;
+  Communicator client(options);
+  auto peer = client.connect("127.0.0.1", server.port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  Proxy echo(client, peer, "/echo");
+
+  server.process->signal(SIGSTOP);
+  Binary chunk;
+  chunk.bytes.resize(256u << 10, std::byte{1});
+  std::int64_t accepted = 0;
+  bool overloaded = false;
+  std::size_t max_queued = 0;
+  for (int i = 0; i < 100000 && !overloaded; ++i) {  // 25 GB if nothing pushed back
+    try {
+      echo.notify(Echo::absorb, chunk);
+      ++accepted;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::overloaded) << e.what();
+      EXPECT_NE(std::string(e.what()).find("send queue"), std::string::npos) << e.what();
+      overloaded = true;
+    }
+    max_queued = std::max(max_queued, peer->connection()->queued_bytes());
+  }
+  EXPECT_TRUE(overloaded);
+  EXPECT_LE(max_queued, options.connection.send_queue_limit);
+  EXPECT_LT(accepted, 200) << "the sender kept accepting far more than its queue limit";
+
+  // Resume the receiver: everything accepted is delivered, then new sends work again.
+  server.process->signal(SIGCONT);
+  ASSERT_TRUE(planet_test::wait_until([&] { return peer->connection()->queued_bytes() == 0; }, 60s));
+  EXPECT_NO_THROW(echo.notify(Echo::absorb, chunk));
+  ++accepted;
+  // Small calls may overtake the last large message (frames interleave), so poll.
+  std::vector<std::int64_t> absorbed;
+  EXPECT_TRUE(planet_test::wait_until([&] {
+    absorbed = echo.with_timeout(60s).call(Echo::absorbed);
+    return absorbed.at(1) == accepted;
+  }, 60s));
+  EXPECT_EQ(absorbed.at(1), accepted);
+  EXPECT_EQ(absorbed.at(0), accepted * static_cast<std::int64_t>(chunk.bytes.size()));
+}
+
+// --- A raw receiver that never grants credit -----------------------------------------------
+
+class RawListener {
+ public:
+  RawListener() {
+    fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ::bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+    ::listen(fd_, 4);
+    socklen_t len = sizeof addr;
+    ::getsockname(fd_, reinterpret_cast<sockaddr*>(&addr), &len);
+    port_ = ntohs(addr.sin_port);
+  }
+  ~RawListener() {
+    if (conn_ >= 0) ::close(conn_);
+    ::close(fd_);
+  }
+  std::uint16_t port() const { return port_; }
+  void accept() { conn_ = ::accept(fd_, nullptr, nullptr); }
+  // Reads one whole frame; false on timeout or EOF.
+  bool read_frame(FrameHeader& h, std::vector<std::byte>& payload, std::chrono::milliseconds t) {
+    std::byte header[kFrameHeaderSize];
+    if (!read_exact(header, kFrameHeaderSize, t)) return false;
+    auto parsed = parse_header(std::span<const std::byte>(header, kFrameHeaderSize));
+    if (!parsed.header) return false;
+    h = *parsed.header;
+    payload.resize(h.payload_size());
+    return payload.empty() || read_exact(payload.data(), payload.size(), t);
+  }
+  void send_frame(FrameCode code, const std::vector<std::byte>& payload, std::uint32_t msg = 0) {
+    FrameHeader h;
+    h.code = code;
+    h.msg_no = msg;
+    h.length = static_cast<std::uint32_t>(kFrameHeaderSize + payload.size());
+    auto header = encode_header(h);
+    ASSERT_EQ(::send(conn_, header.data(), header.size(), MSG_NOSIGNAL),
+              static_cast<ssize_t>(header.size()));
+    if (!payload.empty()) {
+      ASSERT_EQ(::send(conn_, payload.data(), payload.size(), MSG_NOSIGNAL),
+                static_cast<ssize_t>(payload.size()));
+    }
+  }
+
+ private:
+  bool read_exact(std::byte* p, std::size_t n, std::chrono::milliseconds t) {
+    while (n > 0) {
+      pollfd pfd{conn_, POLLIN, 0};
+      if (::poll(&pfd, 1, static_cast<int>(t.count())) <= 0) return false;
+      const ssize_t got = ::recv(conn_, p, n, 0);
+      if (got <= 0) return false;
+      p += got;
+      n -= static_cast<std::size_t>(got);
+    }
+    return true;
+  }
+  int fd_ = -1;
+  int conn_ = -1;
+  std::uint16_t port_ = 0;
+};
+
+TEST(Transfer, SenderStopsAtTheWindowUntilTheReceiverAcksAndSmallMessagesStillPass) {
+  RawListener raw;
+  CommunicatorOptions options;
+  options.connection.heartbeat_interval = 60s;
+  options.connection.heartbeat_timeout = 600s;
+  Communicator client(options);
+  auto peer = client.connect("127.0.0.1", raw.port());
+  raw.accept();
+  FrameHeader h;
+  std::vector<std::byte> payload;
+  ASSERT_TRUE(raw.read_frame(h, payload, 10s));
+  ASSERT_EQ(h.code, FrameCode::connect);
+  std::vector<std::byte> ack;
+  Writer w(ack);
+  w.u8(kConnectAccept);
+  w.str("raw-receiver");
+  raw.send_frame(FrameCode::connect_ack, ack);
+  ASSERT_TRUE(peer->wait_connected(10s));
+  Proxy sink(client, peer, "/sink");
+
+  Binary big;
+  big.bytes.resize(1u << 20);
+  sink.notify(Echo::absorb, big);  // 65 frames
+
+  std::uint32_t big_msg = 0;
+  std::uint32_t big_frames = 0;
+  for (std::uint32_t i = 0; i < kWindowFrames; ++i) {
+    ASSERT_TRUE(raw.read_frame(h, payload, 10s)) << "frame " << i << " of the window";
+    big_msg = h.msg_no;
+    EXPECT_EQ(h.frame_no, i);
+    ++big_frames;
+  }
+  // The window is used up: the next frame to arrive is a new small message, not frame 8.
+  sink.notify(Echo::count, 1);
+  ASSERT_TRUE(raw.read_frame(h, payload, 10s));
+  EXPECT_NE(h.msg_no, big_msg);
+  EXPECT_TRUE(h.final);
+  EXPECT_EQ(h.frame_no, 0u);
+
+  // One DATA_ACK(more) grants exactly kAckEvery more frames.
+  std::vector<std::byte> more;
+  Writer mw(more);
+  mw.u32(big_msg);
+  mw.u32(static_cast<std::uint32_t>(AckCode::more));
+  raw.send_frame(FrameCode::data_ack, more, big_msg);
+  for (std::uint32_t i = 0; i < kAckEvery; ++i) {
+    ASSERT_TRUE(raw.read_frame(h, payload, 10s));
+    EXPECT_EQ(h.msg_no, big_msg);
+    EXPECT_EQ(h.frame_no, kWindowFrames + i);
+  }
+  // A heartbeat-free quiet period shows no further frame was sent without credit.
+  EXPECT_FALSE(raw.read_frame(h, payload, 300ms)) << "frame sent beyond the window";
+
+  // DATA_ACK(no more) makes the sender end the message with an empty final frame.
+  std::vector<std::byte> stop;
+  Writer sw(stop);
+  sw.u32(big_msg);
+  sw.u32(static_cast<std::uint32_t>(AckCode::no_more));
+  raw.send_frame(FrameCode::data_ack, stop, big_msg);
+  ASSERT_TRUE(raw.read_frame(h, payload, 10s));
+  EXPECT_EQ(h.msg_no, big_msg);
+  EXPECT_TRUE(h.final);
+  EXPECT_TRUE(payload.empty());
+  EXPECT_TRUE(planet_test::wait_until([&] { return peer->connection()->queued_bytes() == 0; }));
+}
+
+TEST(Transfer, OversizedCallIsRefusedWithAnErrorAndTheLinkStaysUp) {
+  auto server = planet_test::start_test_server({"--max-message", "1048576"});
+  Communicator client;
+  auto peer = client.connect("127.0.0.1", server.port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  Proxy echo(client, peer, "/echo");
+  Binary big;
+  big.bytes.resize(3u << 20);
+  try {
+    echo.call(Echo::size_of, big);
+    FAIL() << "a 3 MiB call to a server with a 1 MiB limit must fail";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::overloaded) << e.what();
+    EXPECT_NE(std::string(e.what()).find("max_message_size"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(echo.call(Echo::echo_int, 9), 9);
+  // Repeated refusals do not use up the receiver's interleaving slots.
+  for (int i = 0; i < 40; ++i) EXPECT_THROW(echo.call(Echo::size_of, big), Error);
+  EXPECT_EQ(echo.call(Echo::echo_int, 10), 10);
+  EXPECT_EQ(peer->connect_count(), 1u);
+}
+
+}  // namespace
+}  // namespace icars::planet
