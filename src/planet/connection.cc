@@ -87,10 +87,6 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
       id_(next_id_.fetch_add(1)),
       rbuf_(kReadBufferSize) {
   options_.validate();
-  if (local_pun_.size() > kMaxControlPayload - 16) {
-    throw std::invalid_argument("PUN longer than " + std::to_string(kMaxControlPayload - 16) +
-                                " bytes");
-  }
   std::error_code ec;
   socket_.set_option(asio::ip::tcp::no_delay(true), ec);
   const auto remote = socket_.remote_endpoint(ec);

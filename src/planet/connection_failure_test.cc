@@ -176,3 +176,20 @@ TEST(ConnectionFailure, ServerCallsTheClientBackOverTheClientsConnection) {
 
 }  // namespace
 }  // namespace icars::planet
+
+namespace icars::planet {
+namespace {
+
+TEST(ConnectionFailure, OverlongPunIsRejectedBeforeAnyConnection) {
+  CommunicatorOptions options;
+  options.pun = std::string(2000, 'x');
+  try {
+    Communicator c(options);
+    FAIL() << "a PUN that cannot fit a CONNECT frame must be refused";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("PUN of 2000 bytes"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace icars::planet

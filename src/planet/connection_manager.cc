@@ -194,6 +194,10 @@ void ConnectionManager::set_acceptor(Connection::Acceptor acceptor) {
 }
 
 void ConnectionManager::set_local_pun(std::string pun) {
+  if (pun.size() > kMaxControlPayload - 16) {  // CONNECT and CONNECT_ACK must fit one frame
+    throw std::invalid_argument(
+        fmt::format("PUN of {} bytes is longer than {}", pun.size(), kMaxControlPayload - 16));
+  }
   std::lock_guard lock(mutex_);
   local_pun_ = std::move(pun);
 }
