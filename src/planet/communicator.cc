@@ -317,35 +317,31 @@ void Communicator::send_reply(const std::shared_ptr<Connection>& c, std::uint32_
 void Communicator::report_failure(const std::shared_ptr<Connection>& c, bool oneway,
                                   std::uint32_t request_id, std::string_view path,
                                   std::string_view method, const std::exception_ptr& failure) {
+  ErrorKind kind = ErrorKind::failed;
+  std::string type = "unknown";
+  std::string message = "the servant threw a non-standard exception";
+  Properties properties;
   try {
     std::rethrow_exception(failure);
   } catch (const RemoteException& e) {
-    if (oneway) {
-      log_->warn("one-way '{}' on '{}' raised {}", method, path, e.what());
-    } else {
-      send_error(c, request_id, ErrorKind::failed, e.type_id(), e.remote_message(), e.properties());
-    }
+    type = e.type_id();
+    message = e.remote_message();
+    properties = e.properties();
   } catch (const Error& e) {
-    if (oneway) {
-      log_->warn("one-way '{}' on '{}' failed: {}", method, path, e.what());
-    } else {
-      const char* type = e.kind() == ErrorKind::unimplemented ? "planet::NoSuchMethod"
-                         : e.kind() == ErrorKind::bad_data    ? "planet::BadData"
-                                                              : "planet::Error";
-      send_error(c, request_id, e.kind(), type, e.message());
-    }
+    kind = e.kind();
+    type = kind == ErrorKind::unimplemented ? "planet::NoSuchMethod"
+           : kind == ErrorKind::bad_data    ? "planet::BadData"
+                                            : "planet::Error";
+    message = e.message();
   } catch (const std::exception& e) {
-    if (oneway) {
-      log_->warn("one-way '{}' on '{}' threw: {}", method, path, e.what());
-    } else {
-      send_error(c, request_id, ErrorKind::failed, "std::exception", e.what());
-    }
+    type = "std::exception";
+    message = e.what();
   } catch (...) {
-    if (oneway) {
-      log_->warn("one-way '{}' on '{}' threw a non-standard exception", method, path);
-    } else {
-      send_error(c, request_id, ErrorKind::failed, "unknown", "the servant threw a non-standard exception");
-    }
+  }
+  if (oneway) {
+    log_->warn("one-way '{}' on '{}' failed: {}: {}", method, path, type, message);
+  } else {
+    send_error(c, request_id, kind, type, message, properties);
   }
 }
 

@@ -552,21 +552,16 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
         fmt::format("message #{} from {} exceeds max_message_size ({} bytes); refused", h.msg_no,
                     describe(), options_.max_message_size);
     log_->warn("{}", reason);
-    std::vector<std::byte> ack;
-    Writer w(ack);
-    w.u32(h.msg_no);
-    w.u32(static_cast<std::uint32_t>(AckCode::no_more));
-    send_control(FrameCode::data_ack, std::move(ack), h.msg_no);
+    send_data_ack(h.msg_no, AckCode::no_more);
     in->refused = true;
     incomplete_bytes_ -= in->data.size();
-    handler_.on_message_refused(shared_from_this(), in->data, reason);
+    const std::vector<std::byte> received = std::move(in->data);
     in->data = {};
-    if (h.final) {
-      incoming_.erase(std::find_if(incoming_.begin(), incoming_.end(),
-                                   [&](const auto& x) { return x.get() == in; }));
-    }
+    if (h.final) incoming_.erase(it);
+    handler_.on_message_refused(shared_from_this(), received, reason);
+    if (state_.load() == State::closed) return false;
     release_deferred_acks();
-    return state_.load() != State::closed;
+    return true;
   }
   in->data.insert(in->data.end(), payload.begin(), payload.end());
   incomplete_bytes_ += payload.size();
@@ -603,13 +598,17 @@ void Connection::release_deferred_acks() {
            (privileged || incomplete_bytes_.load() <= options_.receive_budget)) {
       --in.owed_acks;
       in.granted += kAckEvery;
-      std::vector<std::byte> ack;
-      Writer w(ack);
-      w.u32(in.msg_no);
-      w.u32(static_cast<std::uint32_t>(AckCode::more));
-      send_control(FrameCode::data_ack, std::move(ack), in.msg_no);
+      send_data_ack(in.msg_no, AckCode::more);
     }
   }
+}
+
+void Connection::send_data_ack(std::uint32_t msg_no, AckCode code) {
+  std::vector<std::byte> ack;
+  Writer w(ack);
+  w.u32(msg_no);
+  w.u32(static_cast<std::uint32_t>(code));
+  send_control(FrameCode::data_ack, std::move(ack), msg_no);
 }
 
 bool Connection::handle_data_ack(std::span<const std::byte> payload) {

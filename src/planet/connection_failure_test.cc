@@ -97,7 +97,7 @@ TEST(ConnectionFailure, FrozenPeerIsDetectedByHeartbeatTimeout) {
   (void)in_flight.wait_for(20s);
 
   // SIGSTOP: the TCP connection stays up, but the peer says nothing any more.
-  server.process->signal(SIGSTOP);
+  server.process->freeze();
   auto stuck = echo.with_timeout(600s).async_call(Echo::echo_int, {6}, asio::use_future);
   const auto start = std::chrono::steady_clock::now();
   ASSERT_TRUE(planet_test::wait_until([&] { return !peer->is_connected(); }, 30s));
@@ -114,7 +114,7 @@ TEST(ConnectionFailure, FrozenPeerIsDetectedByHeartbeatTimeout) {
     EXPECT_NE(events.reasons[1].find("heartbeat timeout"), std::string::npos);
   }
   // Once it thaws, the client reconnects.
-  server.process->signal(SIGCONT);
+  server.process->thaw();
   ASSERT_TRUE(planet_test::wait_until([&] { return peer->connect_count() >= 2; }, 30s))
       << peer->last_error();
   EXPECT_EQ(echo.call(Echo::echo_int, 7), 7);

@@ -66,7 +66,7 @@ TEST(Transfer, SenderMemoryIsBoundedWhenTheReceiverStopsReadingAndNothingIsLost)
   ASSERT_TRUE(peer->wait_connected(20s));
   Proxy echo(client, peer, "/echo");
 
-  server.process->signal(SIGSTOP);
+  server.process->freeze();
   Binary chunk;
   chunk.bytes.resize(256u << 10, std::byte{1});
   std::int64_t accepted = 0;
@@ -88,7 +88,7 @@ TEST(Transfer, SenderMemoryIsBoundedWhenTheReceiverStopsReadingAndNothingIsLost)
   EXPECT_LT(accepted, 200) << "the sender kept accepting far more than its queue limit";
 
   // Resume the receiver: everything accepted is delivered, then new sends work again.
-  server.process->signal(SIGCONT);
+  server.process->thaw();
   ASSERT_TRUE(planet_test::wait_until([&] { return peer->connection()->queued_bytes() == 0; }, 60s));
   EXPECT_NO_THROW(echo.notify(Echo::absorb, chunk));
   ++accepted;

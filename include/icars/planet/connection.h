@@ -154,6 +154,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool handle_data(const FrameHeader& h, std::span<const std::byte> payload);
   bool handle_data_ack(std::span<const std::byte> payload);
   void release_deferred_acks();
+  void send_data_ack(std::uint32_t msg_no, AckCode code);
   void send_control(FrameCode code, std::vector<std::byte> payload, std::uint32_t msg_no = 0);
   void schedule_write_locked();
   void write_batch();

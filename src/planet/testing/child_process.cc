@@ -46,6 +46,16 @@ ChildProcess::~ChildProcess() {
 
 void ChildProcess::signal(int sig) const { ::kill(pid_, sig); }
 
+void ChildProcess::freeze() {
+  ::kill(pid_, SIGSTOP);
+  int status = 0;
+  if (::waitpid(pid_, &status, WUNTRACED) != pid_ || !WIFSTOPPED(status)) {
+    throw std::runtime_error("child process did not stop");
+  }
+}
+
+void ChildProcess::thaw() const { ::kill(pid_, SIGCONT); }
+
 std::optional<std::string> ChildProcess::read_line(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {

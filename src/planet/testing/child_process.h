@@ -23,6 +23,10 @@ class ChildProcess {
 
   pid_t pid() const { return pid_; }
   void signal(int sig) const;
+  // SIGSTOP, returning once the process is really stopped (a signal is delivered asynchronously,
+  // so a busy process may run on for a moment after kill() returns).
+  void freeze();
+  void thaw() const;  // SIGCONT
   // The next line of stdout, or nullopt at EOF or after the timeout.
   std::optional<std::string> read_line(std::chrono::milliseconds timeout);
   // Waits for exit and returns the raw wait status.
