@@ -6,7 +6,11 @@
 
 #include <asio/co_spawn.hpp>
 #include <asio/post.hpp>
+#include <charconv>
 #include <future>
+#include <stdexcept>
+
+#include "stream_table.h"
 
 namespace icars::planet {
 
@@ -40,6 +44,7 @@ Communicator::Communicator(CommunicatorOptions options)
       work_(std::make_unique<asio::executor_work_guard<asio::io_context::executor_type>>(
           io_->get_executor())),
       manager_(std::make_unique<ConnectionManager>(io_, static_cast<MessageHandler&>(*this), options_.connection, log_)),
+      streams_(std::make_unique<detail::StreamTable>(*log_)),
       sweep_timer_(std::make_unique<asio::steady_timer>(*io_)) {
   if (!options_.pun.empty()) manager_->set_local_pun(options_.pun);
   std::promise<std::thread::id> started;
@@ -90,6 +95,43 @@ std::uint16_t Communicator::listen(const std::string& address, std::uint16_t por
 std::shared_ptr<Peer> Communicator::connect(const std::string& host, std::uint16_t port,
                                             ReconnectPolicy policy) {
   return manager_->connect(host, port, policy);
+}
+
+// --- Remote references ---------------------------------------------------------------------
+
+ObjectRef Communicator::reference(const std::string& path) const {
+  auto servant = adapter_.find(path);
+  if (!servant) throw std::invalid_argument("no servant registered at '" + path + "'");
+  return ObjectRef{manager_->local_pun(), path, servant->type_id()};
+}
+
+std::shared_ptr<Link> Communicator::resolve(const ObjectRef& ref,
+                                            const std::shared_ptr<Link>& via) {
+  if (ref.pun.empty()) return via;
+  if (via) {
+    if (auto c = via->connection(); c && c->peer_pun() == ref.pun) return via;
+  }
+  for (auto& c : manager_->connections()) {
+    if (c->is_open() && c->peer_pun() == ref.pun) return c;
+  }
+  std::lock_guard lock(routes_mutex_);
+  if (auto it = routes_.find(ref.pun); it != routes_.end()) return it->second;
+  const auto colon = ref.pun.rfind(':');
+  std::uint16_t port = 0;
+  if (colon != std::string::npos && colon > 0) {
+    const char* first = ref.pun.data() + colon + 1;
+    const char* last = ref.pun.data() + ref.pun.size();
+    auto [end, ec] = std::from_chars(first, last, port);
+    if (ec == std::errc() && end == last && port != 0) {
+      auto peer = manager_->connect(ref.pun.substr(0, colon), port);
+      routes_.emplace(ref.pun, peer);
+      return peer;
+    }
+  }
+  throw Error(ErrorKind::refused,
+              fmt::format("the reference to {} names endpoint '{}', which is neither the peer it "
+                          "came from nor a connected or host:port endpoint",
+                          ref.path, ref.pun));
 }
 
 // --- Request Manager -----------------------------------------------------------------------
@@ -176,6 +218,7 @@ void Communicator::sweep_deadlines() {
   for (auto id : expired) {
     cancel_call(id, Error(ErrorKind::timeout, fmt::format("no reply to request {} in time", id)));
   }
+  streams_->sweep(now);
   sweep_timer_->expires_after(kSweepInterval);
   sweep_timer_->async_wait([this](const std::error_code& ec) {
     if (!ec) sweep_deadlines();
@@ -216,12 +259,9 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
         complete(*c, request_id, error, nullptr);
         return;
       }
-      case RmiCode::stream: {
-        const std::uint32_t stream_id = r.u32();
-        log_->warn("STREAM message for stream {} from {} dropped: no such stream", stream_id,
-                   c->describe());
+      case RmiCode::stream:
+        streams_->on_message(c, r);
         return;
-      }
     }
     log_->warn("message with unknown RMI code {} from {} dropped",
                static_cast<unsigned>(code), c->describe());
@@ -254,7 +294,7 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
     if (!oneway) send_error(c, request_id, ErrorKind::unimplemented, "planet::NoSuchObject", message);
     return;
   }
-  const Current current{c, path, method, oneway ? 0 : request_id};
+  const Current current{c, path, method, oneway ? 0 : request_id, this};
   std::vector<std::byte> reply;
   Writer w(reply);
   if (!oneway) {
@@ -378,6 +418,7 @@ void Communicator::on_message_refused(const std::shared_ptr<Connection>& c,
 void Communicator::on_open(const std::shared_ptr<Connection>&) {}
 
 void Communicator::on_close(const std::shared_ptr<Connection>& c, const Error& reason) {
+  streams_->on_close(*c, reason);
   std::vector<Completion> failed;
   {
     std::lock_guard lock(pending_mutex_);

@@ -20,6 +20,7 @@
 
 #include "icars/planet/connection.h"
 #include "icars/planet/connection_manager.h"
+#include "icars/planet/remote.h"
 #include "icars/planet/detail/unique_function.h"
 #include "icars/planet/rmi_message.h"
 #include "icars/planet/servant.h"
@@ -29,6 +30,10 @@ class logger;
 }
 
 namespace icars::planet {
+
+namespace detail {
+class StreamTable;
+}
 
 struct CommunicatorOptions {
   ConnectionOptions connection;
@@ -48,6 +53,7 @@ class Communicator final : private MessageHandler {
   ObjectAdapter& adapter() { return adapter_; }
   ConnectionManager& connections() { return *manager_; }
   asio::io_context& io() { return *io_; }
+  const std::shared_ptr<asio::io_context>& shared_io() const { return io_; }
   asio::io_context::executor_type executor() { return io_->get_executor(); }
   bool in_io_thread() const { return io_thread_id_ == std::this_thread::get_id(); }
   spdlog::logger& log() { return *log_; }
@@ -58,6 +64,26 @@ class Communicator final : private MessageHandler {
   // Client role; see ConnectionManager::connect.
   std::shared_ptr<Peer> connect(const std::string& host, std::uint16_t port,
                                 ReconnectPolicy policy = {});
+
+  // --- Remote references ---
+  // A reference to the servant at `path` of this endpoint, to pass to a peer; its PUN is this
+  // endpoint's (empty, meaning "the sender", until a PUN is configured or listen() ran).
+  // Throws std::invalid_argument when no servant is registered there.
+  ObjectRef reference(const std::string& path) const;
+  template <class I>
+  Ref<I> reference(const std::string& path) const {
+    ObjectRef ref = reference(path);
+    if (ref.type_id != I::type_id) {
+      throw std::invalid_argument("the servant at " + path + " implements " + ref.type_id +
+                                  ", not " + std::string(I::type_id));
+    }
+    return Ref<I>(std::move(ref));
+  }
+  // The link to reach the object `ref` names, given the link it arrived over: `via` itself when
+  // the PUN is empty or is the PUN of via's peer; else an open connection to a peer with that
+  // PUN; else, for a PUN of the form "host:port", a reconnecting link to it (kept and reused).
+  // Throws Error(refused) when the PUN cannot be reached.
+  std::shared_ptr<Link> resolve(const ObjectRef& ref, const std::shared_ptr<Link>& via);
 
   // --- Request Manager (used by Proxy) ---
   using Completion = detail::UniqueFunction<void(std::exception_ptr, Reader*)>;
@@ -72,6 +98,9 @@ class Communicator final : private MessageHandler {
   // Sends a NOTIFY; throws Error(disconnected/overloaded) when it cannot be queued.
   void send_oneway(const Link& link, std::vector<std::byte> request);
   std::size_t pending_calls() const;
+
+  // Internal: the stream channels (stream.h).
+  detail::StreamTable& stream_table() { return *streams_; }
 
  private:
   struct Pending {
@@ -107,7 +136,10 @@ class Communicator final : private MessageHandler {
   std::unique_ptr<asio::executor_work_guard<asio::io_context::executor_type>> work_;
   std::unique_ptr<ConnectionManager> manager_;
   ObjectAdapter adapter_;
+  std::unique_ptr<detail::StreamTable> streams_;
   std::unique_ptr<asio::steady_timer> sweep_timer_;
+  std::mutex routes_mutex_;
+  std::unordered_map<std::string, std::shared_ptr<Peer>> routes_;  // PUN -> link, by resolve()
 
   mutable std::mutex pending_mutex_;
   std::unordered_map<std::uint32_t, Pending> pending_;

@@ -8,6 +8,8 @@
 #pragma once
 
 #include <string>
+#include <tuple>
+#include <type_traits>
 #include <string_view>
 #include <utility>
 #include <vector>
@@ -151,4 +153,103 @@ struct Codec<RemoteException> {
   }
 };
 
+// --- Typed events ----------------------------------------------------------------------------
+//
+// A struct becomes a typed event type through TypeName<T> (its event type name) and
+// EventFields<T> (a tuple of event_field("name", &T::member)), written by planet-idl or by
+// PLANET_EVENT. It travels as a PLANET `event` whose properties are its fields, so the same
+// bytes read either as the struct or, by a generic receiver, as an Event.
+
+template <class M>
+struct EventField {
+  std::string_view name;
+  M member;
+};
+template <class M>
+constexpr EventField<M> event_field(std::string_view name, M member) {
+  return EventField<M>{name, member};
+}
+
+template <class T>
+struct EventFields;
+
+template <class T>
+concept TypedEvent = requires {
+  EventFields<T>::value;
+  TypeName<T>::value;
+};
+
+template <TypedEvent T>
+Event to_event(const T& v) {
+  Event e{std::string(TypeName<T>::value)};
+  std::apply([&](const auto&... field) { (e.set(field.name, v.*(field.member)), ...); },
+             EventFields<T>::value);
+  return e;
+}
+
+// Reads a typed event from a generic one; throws Error(bad_data) when the event type differs or
+// a property is missing or of another type. Extra properties are ignored (newer publishers).
+template <TypedEvent T>
+T from_event(const Event& e) {
+  if (e.type() != TypeName<T>::value) {
+    throw Error(ErrorKind::bad_data, "expected event " + std::string(TypeName<T>::value) +
+                                         ", got " + e.type());
+  }
+  T v{};
+  std::apply(
+      [&](const auto&... field) {
+        ((v.*(field.member) =
+              e.template get<std::remove_cvref_t<decltype(v.*(field.member))>>(field.name)),
+         ...);
+      },
+      EventFields<T>::value);
+  return v;
+}
+
+template <TypedEvent T>
+struct Codec<T> {
+  static constexpr std::size_t kMinSize = Codec<Event>::kMinSize;
+  static void describe(Writer& w) { Codec<Event>::describe(w); }
+  static void encode(Writer& w, const T& v) { Codec<Event>::encode(w, to_event(v)); }
+  static T decode(Reader& r) {
+    Event e = Codec<Event>::decode(r);
+    try {
+      return from_event<T>(e);
+    } catch (const Error& error) {
+      r.fail(error.message());
+    }
+  }
+};
+
 }  // namespace icars::planet
+
+// Declares a struct as a typed PLANET event named after the type, with the listed fields as its
+// properties, e.g. PLANET_EVENT(home::SoundEvent, direction, level). Use at global scope.
+#define PLANET_DETAIL_EVENT_FIELD(Type, field) icars::planet::event_field(#field, &Type::field)
+#define PLANET_DETAIL_EF_1(T, a) PLANET_DETAIL_EVENT_FIELD(T, a)
+#define PLANET_DETAIL_EF_2(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_1(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_3(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_2(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_4(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_3(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_5(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_4(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_6(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_5(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_7(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_6(T, __VA_ARGS__))
+#define PLANET_DETAIL_EF_8(T, a, ...) \
+  PLANET_DETAIL_EVENT_FIELD(T, a), PLANET_DETAIL_EXPAND(PLANET_DETAIL_EF_7(T, __VA_ARGS__))
+#define PLANET_EVENT(Type, ...)                                                              \
+  template <>                                                                                \
+  struct icars::planet::TypeName<Type> {                                                     \
+    static constexpr std::string_view value = #Type;                                         \
+  };                                                                                         \
+  template <>                                                                                \
+  struct icars::planet::EventFields<Type> {                                                  \
+    static constexpr auto value = std::make_tuple(PLANET_DETAIL_EXPAND(PLANET_DETAIL_PICK(   \
+        __VA_ARGS__, _12, _11, _10, _9, PLANET_DETAIL_EF_8, PLANET_DETAIL_EF_7,               \
+        PLANET_DETAIL_EF_6, PLANET_DETAIL_EF_5, PLANET_DETAIL_EF_4, PLANET_DETAIL_EF_3,       \
+        PLANET_DETAIL_EF_2, PLANET_DETAIL_EF_1)(Type, __VA_ARGS__)));                         \
+  }

@@ -47,18 +47,34 @@ struct CompletionSignature<void> {
 
 class Proxy {
  public:
+  Proxy() = default;  // unbound: every call fails with Error(failed)
   Proxy(Communicator& communicator, std::shared_ptr<Link> link, std::string path)
       : communicator_(&communicator),
         link_(std::move(link)),
         path_(std::move(path)),
         timeout_(communicator.options().call_timeout) {}
 
-  // A proxy for an object passed by reference, reached over `via` (normally the link the
-  // reference arrived on). The reference's PUN is informational in this version: resolving
-  // a PUN to a new link is left to the application.
-  Proxy(Communicator& communicator, std::shared_ptr<Link> via, const ObjectRef& ref)
-      : Proxy(communicator, std::move(via), ref.path) {}
+  // A proxy for an object passed by reference that arrived over `via` (for a servant, the
+  // connection of the request: `current.connection`); the link is chosen by
+  // Communicator::resolve, so a reference to an object of the caller calls back over the
+  // caller's own connection.
+  Proxy(Communicator& communicator, const std::shared_ptr<Link>& via, const ObjectRef& ref)
+      : Proxy(communicator, communicator.resolve(ref, via), ref.path) {}
 
+  bool bound() const { return communicator_ != nullptr && link_ != nullptr; }
+  Communicator& communicator() const {
+    if (!communicator_) throw Error(ErrorKind::failed, "unbound proxy");
+    return *communicator_;
+  }
+  // A reference to this proxy's object, to pass on to another peer. The PUN names the peer at
+  // the other end of the link (empty if the link is down), so the receiver can reach it.
+  ObjectRef object(std::string_view type_id) const {
+    std::string pun;
+    if (link_) {
+      if (auto c = link_->connection()) pun = c->peer_pun();
+    }
+    return ObjectRef{std::move(pun), path_, std::string(type_id)};
+  }
   const std::string& path() const { return path_; }
   const std::shared_ptr<Link>& link() const { return link_; }
   std::chrono::milliseconds timeout() const { return timeout_; }
@@ -72,6 +88,7 @@ class Proxy {
   // Calling it on the communicator's io thread throws (it would deadlock); use async_call.
   template <class R, class... A>
   R call(const Operation<R(A...)>& op, const std::type_identity_t<A>&... args) const {
+    check_bound(op.name());
     if (communicator_->in_io_thread()) {
       throw Error(ErrorKind::failed,
                   "synchronous call of '" + std::string(op.name()) +
@@ -105,7 +122,7 @@ class Proxy {
       communicator_->cancel_call(id, timeout_error(op.name()));
       state.done.acquire();
     }
-    if (state.error) std::rethrow_exception(state.error);
+    if (state.error) std::rethrow_exception(translate(op.translator(), state.error));
     if constexpr (!std::is_void_v<R>) return std::move(state.value);
   }
 
@@ -116,16 +133,19 @@ class Proxy {
                   Token&& token) const {
     using Signature = typename CompletionSignature<R>::type;
     return asio::async_initiate<Token, Signature>(
-        [this, name = op.name()](auto handler, std::tuple<A...> call_args) {
+        [this, name = op.name(), translator = op.translator()](auto handler,
+                                                               std::tuple<A...> call_args) {
+          check_bound(name);
           auto request = std::apply(
               [&](const A&... a) { return encode_request(RmiCode::call, name, a...); }, call_args);
           auto work = asio::make_work_guard(
               asio::get_associated_executor(handler, communicator_->executor()));
           communicator_->start_call(
               *link_, std::move(request), timeout_,
-              [handler = std::move(handler), work = std::move(work)](std::exception_ptr e,
-                                                                       Reader* r) mutable {
+              [handler = std::move(handler), work = std::move(work), translator](
+                  std::exception_ptr e, Reader* r) mutable {
                 std::conditional_t<std::is_void_v<R>, char, R> value{};
+                if (e) e = translate(translator, e);
                 if (!e) {
                   try {
                     if constexpr (std::is_void_v<R>) {
@@ -157,10 +177,28 @@ class Proxy {
   // queued when the link drops is discarded, never replayed after reconnection.
   template <class... A>
   void notify(const OneWay<A...>& op, const std::type_identity_t<A>&... args) const {
+    check_bound(op.name());
     communicator_->send_oneway(*link_, encode_request(RmiCode::notify, op.name(), args...));
   }
 
  private:
+  void check_bound(std::string_view method) const {
+    if (!bound()) {
+      throw Error(ErrorKind::failed, "call of '" + std::string(method) + "' on an unbound proxy");
+    }
+  }
+  // Replaces a RemoteException by the typed exception the operation declares, if any.
+  static std::exception_ptr translate(ExceptionTranslator translator, std::exception_ptr e) {
+    if (!translator) return e;
+    try {
+      std::rethrow_exception(e);
+    } catch (const RemoteException& remote) {
+      return translator(remote);
+    } catch (...) {
+      return e;
+    }
+  }
+
   template <class... A>
   std::vector<std::byte> encode_request(RmiCode code, std::string_view method,
                                         const A&... args) const {
@@ -192,10 +230,10 @@ class Proxy {
                                          " within " + std::to_string(timeout_.count()) + " ms");
   }
 
-  Communicator* communicator_;
+  Communicator* communicator_ = nullptr;
   std::shared_ptr<Link> link_;
   std::string path_;
-  std::chrono::milliseconds timeout_;
+  std::chrono::milliseconds timeout_{0};
 };
 
 }  // namespace icars::planet

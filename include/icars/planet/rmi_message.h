@@ -19,11 +19,14 @@ enum class RmiCode : std::uint8_t {
   stream = 5,  // u32 stream_id, u8 StreamOp, operation body
 };
 
+// STREAM operations. DATA, END and ABORT go from the writer to the reader; PULL and CANCEL from
+// the reader to the writer, so the direction tells which end a stream id names.
 enum class StreamOp : std::uint8_t {
-  data = 1,    // u32 length + bytes: the next chunk
-  pull = 2,    // u32 bytes: the reader wants this many more bytes (credit)
+  data = 1,    // u32 length + bytes: the next chunk, within the credit granted
+  pull = 2,    // u32 bytes: credit, the reader accepts this many more bytes
   end = 3,     // no body: the writer has no more data
-  cancel = 4,  // string reason: either side abandons the stream
+  cancel = 4,  // string reason: the reader abandons the stream
+  abort = 5,   // string reason: the writer abandons the stream
 };
 
 inline constexpr std::size_t kRequestIdOffset = 1;  // where CALL's request_id sits

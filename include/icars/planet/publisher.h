@@ -1,0 +1,111 @@
+// PLANET publish/subscribe: fanning events out to remote listeners over NOTIFY.
+//
+// A publisher (a sensor's capability, a service) keeps the listeners that subscribed to it —
+// each a remote object reached through a Proxy, usually the stub a servant received as the
+// argument of its `subscribe` operation — and sends every published event to all of them as a
+// one-way call of the listener's callback operation:
+//
+//   planet::Publisher<SoundEvent> sounds(communicator, SoundListener::on_sound);
+//   sounds.subscribe(listener_prx);      // inside the servant's subscribe(listener, current)
+//   sounds.publish(SoundEvent{...});     // never blocks
+//
+// A slow or dead subscriber never stalls the others. Policy: each subscriber may have at most
+// `max_backlog_bytes` accepted by its connection and not yet written to the socket; while it is
+// over that limit, events for it are dropped (and counted), the others still get every event.
+// A subscriber that has been over the limit for `stall_timeout`, or whose connection closed, is
+// unsubscribed. Delivery is at most once and in publish order per subscriber.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "icars/planet/proxy.h"
+
+namespace icars::planet {
+
+struct PublisherOptions {
+  std::size_t max_backlog_bytes = 1u << 20;
+  std::chrono::milliseconds stall_timeout{10000};
+};
+
+struct SubscriberInfo {
+  std::uint64_t id = 0;
+  std::string link;  // describes the subscriber's link
+  std::string path;
+  std::uint64_t delivered = 0;
+  std::uint64_t dropped = 0;
+};
+
+namespace detail {
+
+// The type-independent part of a Publisher. Thread-safe.
+class FanOut {
+ public:
+  FanOut(std::string method, PublisherOptions options) : method_(std::move(method)),
+                                                           options_(options) {}
+  std::uint64_t subscribe(std::shared_ptr<Link> link, std::string path);
+  bool unsubscribe(std::uint64_t id);
+  bool unsubscribe(const Link& link, const std::string& path);
+  // `arguments` is the argument count byte followed by the tagged arguments.
+  std::size_t publish(std::span<const std::byte> arguments);
+  std::vector<SubscriberInfo> subscribers() const;
+  std::uint64_t removed() const;  // subscribers dropped by the policy so far
+
+ private:
+  struct Subscriber {
+    SubscriberInfo info;
+    std::shared_ptr<Link> link;
+    std::chrono::steady_clock::time_point over_limit_since{};
+    bool over_limit = false;
+  };
+  bool deliver(Subscriber& s, std::span<const std::byte> arguments,
+               std::chrono::steady_clock::time_point now);
+
+  std::string method_;
+  PublisherOptions options_;
+  mutable std::mutex mutex_;
+  std::vector<Subscriber> subscribers_;
+  std::uint64_t next_id_ = 1;
+  std::uint64_t removed_ = 0;
+};
+
+}  // namespace detail
+
+template <class... A>
+class Publisher {
+ public:
+  Publisher(const OneWay<A...>& callback, PublisherOptions options = {})
+      : fanout_(std::string(callback.name()), options) {}
+
+  // Adds the listener `listener` names; returns its subscription id.
+  std::uint64_t subscribe(const Proxy& listener) {
+    if (!listener.bound()) throw Error(ErrorKind::failed, "cannot subscribe an unbound proxy");
+    return fanout_.subscribe(listener.link(), listener.path());
+  }
+  bool unsubscribe(std::uint64_t id) { return fanout_.unsubscribe(id); }
+  bool unsubscribe(const Proxy& listener) {
+    return listener.bound() && fanout_.unsubscribe(*listener.link(), listener.path());
+  }
+
+  // Sends the event to every subscriber; returns how many it was queued for. Never blocks.
+  std::size_t publish(const std::type_identity_t<A>&... args) {
+    std::vector<std::byte> arguments;
+    Writer w(arguments);
+    w.u8(static_cast<std::uint8_t>(sizeof...(A)));
+    (encode_tagged(w, args), ...);
+    return fanout_.publish(arguments);
+  }
+
+  std::vector<SubscriberInfo> subscribers() const { return fanout_.subscribers(); }
+  std::size_t size() const { return fanout_.subscribers().size(); }
+  std::uint64_t removed() const { return fanout_.removed(); }
+
+ private:
+  detail::FanOut fanout_;
+};
+
+}  // namespace icars::planet
