@@ -6,7 +6,6 @@
 
 #include <asio/co_spawn.hpp>
 #include <asio/post.hpp>
-#include <charconv>
 #include <future>
 #include <stdexcept>
 
@@ -114,23 +113,9 @@ std::shared_ptr<Link> Communicator::resolve(const ObjectRef& ref,
   for (auto& c : manager_->connections()) {
     if (c->is_open() && c->peer_pun() == ref.pun) return c;
   }
-  std::lock_guard lock(routes_mutex_);
-  if (auto it = routes_.find(ref.pun); it != routes_.end()) return it->second;
-  const auto colon = ref.pun.rfind(':');
-  std::uint16_t port = 0;
-  if (colon != std::string::npos && colon > 0) {
-    const char* first = ref.pun.data() + colon + 1;
-    const char* last = ref.pun.data() + ref.pun.size();
-    auto [end, ec] = std::from_chars(first, last, port);
-    if (ec == std::errc() && end == last && port != 0) {
-      auto peer = manager_->connect(ref.pun.substr(0, colon), port);
-      routes_.emplace(ref.pun, peer);
-      return peer;
-    }
-  }
   throw Error(ErrorKind::refused,
               fmt::format("the reference to {} names endpoint '{}', which is neither the peer it "
-                          "came from nor a connected or host:port endpoint",
+                          "came from nor any connected endpoint",
                           ref.path, ref.pun));
 }
 

@@ -242,10 +242,38 @@ TEST_F(RmiCall, ServerCallsBackAnObjectPassedByReference) {
     return "client heard: " + text;
   });
   client_.adapter().add("/me/callback", callback);
-  const ObjectRef me{"", "/me/callback", std::string(Callback::type_id)};
+  const auto me = client_.reference<Callback>("/me/callback");
   EXPECT_EQ(echo().call(Echo::call_back, me, "hello"), "client heard: hello");
   EXPECT_EQ(calls.load(), 1);
+  // A reference that names this client by its PUN resolves to the same connection.
+  const auto named = Ref<Callback>(ObjectRef{echo().call(Echo::caller_pun), "/me/callback",
+                                             std::string(Callback::type_id)});
+  EXPECT_EQ(echo().call(Echo::call_back, named, "again"), "client heard: again");
+  EXPECT_EQ(calls.load(), 2);
   client_.adapter().remove("/me/callback");
+}
+
+TEST_F(RmiCall, ReferencesToUnknownEndpointsOrOfTheWrongTypeAreRefusedClearly) {
+  const auto elsewhere = Ref<Callback>(
+      ObjectRef{"no-such-endpoint", "/x", std::string(Callback::type_id)});
+  try {
+    echo().call(Echo::call_back, elsewhere, "hi");
+    FAIL() << "a reference to an unknown endpoint was used";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no-such-endpoint"), std::string::npos) << e.what();
+  }
+  // A reference to an object of another interface fails to decode at the servant.
+  const auto wrong = Ref<Callback>(ObjectRef{"", "/echo", "test::Echo"});
+  try {
+    echo().call(Echo::call_back, wrong, "hi");
+    FAIL() << "a reference of the wrong type was accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::bad_data) << e.what();
+    EXPECT_NE(std::string(e.what()).find("expected a reference to test::Callback"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_EQ(echo().call(Echo::echo_int, 5), 5);
 }
 
 TEST_F(RmiCall, SynchronousCallOnTheIoThreadIsRefusedInsteadOfDeadlocking) {

@@ -403,6 +403,7 @@ bool StreamTable::send_reason(Connection& to, std::uint32_t id, StreamOp op,
 
 std::shared_ptr<OutputStream> OutputStream::create(Communicator& communicator,
                                                    StreamOptions options) {
+  options.chunk_size = std::clamp<std::size_t>(options.chunk_size, 1, kMaxStreamChunk);
   auto& table = communicator.stream_table();
   const std::uint32_t id = table.allocate_id();
   auto channel = std::make_shared<detail::OutputChannel>(table, id, options);

@@ -81,8 +81,7 @@ class Communicator final : private MessageHandler {
   }
   // The link to reach the object `ref` names, given the link it arrived over: `via` itself when
   // the PUN is empty or is the PUN of via's peer; else an open connection to a peer with that
-  // PUN; else, for a PUN of the form "host:port", a reconnecting link to it (kept and reused).
-  // Throws Error(refused) when the PUN cannot be reached.
+  // PUN. Throws Error(refused) otherwise: connect to that endpoint first.
   std::shared_ptr<Link> resolve(const ObjectRef& ref, const std::shared_ptr<Link>& via);
 
   // --- Request Manager (used by Proxy) ---
@@ -138,8 +137,6 @@ class Communicator final : private MessageHandler {
   ObjectAdapter adapter_;
   std::unique_ptr<detail::StreamTable> streams_;
   std::unique_ptr<asio::steady_timer> sweep_timer_;
-  std::mutex routes_mutex_;
-  std::unordered_map<std::string, std::shared_ptr<Peer>> routes_;  // PUN -> link, by resolve()
 
   mutable std::mutex pending_mutex_;
   std::unordered_map<std::uint32_t, Pending> pending_;

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "icars/planet/detail/unique_function.h"
+#include "icars/planet/frame.h"
 #include "icars/planet/serializer.h"
 
 namespace icars::planet {
@@ -44,9 +45,13 @@ class OutputChannel;
 class InputChannel;
 }  // namespace detail
 
+inline constexpr std::size_t kMaxStreamChunk = kMaxFramePayload - 10;  // 10: STREAM DATA header
+
 struct StreamOptions {
   std::size_t window = 1u << 20;      // reader: bytes it lets the writer send ahead of it
-  std::size_t chunk_size = 64u << 10;  // writer: largest DATA message
+  // writer: most data bytes per DATA message. Each STREAM message fits in one transport frame,
+  // so the stream's messages arrive in the order sent; larger values are clamped to that.
+  std::size_t chunk_size = kMaxStreamChunk;
   std::chrono::milliseconds bind_timeout{30000};  // writer: no reader pulled by then -> fails
 };
 

@@ -1,12 +1,19 @@
 #include "test_interfaces.h"
 
+#include <algorithm>
 #include <chrono>
+#include <fstream>
+#include <mutex>
 #include <stdexcept>
 #include <thread>
 
+#include <asio/co_spawn.hpp>
+#include <asio/detached.hpp>
+#include <asio/steady_timer.hpp>
 #include <asio/use_awaitable.hpp>
 
 #include "icars/planet/proxy.h"
+#include "icars/planet/stream.h"
 
 namespace planet_test {
 
@@ -79,12 +86,120 @@ std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator) {
   });
   s->implement(Echo::caller_pun,
                [](const p::Current& current) { return current.connection->peer_pun(); });
-  s->implement(Echo::call_back, [&communicator](p::ObjectRef ref, std::string text,
+  s->implement(Echo::call_back, [&communicator](p::Ref<Callback> ref, std::string text,
                                                 const p::Current& current)
                                      -> asio::awaitable<std::string> {
     // Calls the object the caller passed by reference, over the caller's own connection.
-    p::Proxy back(communicator, current.connection, ref);
+    p::Proxy back(communicator, current.connection, ref.object());
     co_return co_await back.async_call(Callback::notify_me, {text}, asio::use_awaitable);
+  });
+  return s;
+}
+
+std::byte pattern_byte(std::uint64_t i) {
+  return static_cast<std::byte>((i * 31 + (i >> 13)) & 0xFF);
+}
+
+void Checksum::add(std::span<const std::byte> chunk) {
+  for (auto b : chunk) {
+    value = (value ^ std::to_integer<std::uint64_t>(b)) * 1099511628211ull;
+  }
+  bytes += chunk.size();
+}
+
+std::vector<std::int64_t> memory_kb(bool reset_peak) {
+  std::ifstream status("/proc/self/status");
+  std::int64_t hwm = 0;
+  std::int64_t rss = 0;
+  std::string key;
+  while (status >> key) {
+    if (key == "VmHWM:") status >> hwm;
+    if (key == "VmRSS:") status >> rss;
+  }
+  if (reset_peak) std::ofstream("/proc/self/clear_refs") << "5";
+  return {hwm, rss};
+}
+
+namespace {
+
+struct StreamsState {
+  std::mutex mutex;
+  std::string last_write;
+  std::int64_t max_queued = 0;
+};
+
+asio::awaitable<void> produce(std::shared_ptr<p::OutputStream> out, std::int64_t bytes,
+                              std::int32_t chunk, std::shared_ptr<p::Connection> connection,
+                              std::shared_ptr<StreamsState> state) {
+  std::string result = "ok";
+  try {
+    std::uint64_t at = 0;
+    const auto total = static_cast<std::uint64_t>(bytes);
+    while (at < total) {
+      std::vector<std::byte> block(std::min<std::uint64_t>(total - at, static_cast<std::uint64_t>(chunk)));
+      for (auto& b : block) b = pattern_byte(at++);
+      co_await out->async_write(std::move(block), asio::use_awaitable);
+      std::lock_guard lock(state->mutex);
+      state->max_queued = std::max(state->max_queued,
+                                   static_cast<std::int64_t>(connection->queued_bytes()));
+    }
+    out->close();
+  } catch (const std::exception& e) {
+    result = e.what();
+  }
+  std::lock_guard lock(state->mutex);
+  state->last_write = result;
+}
+
+}  // namespace
+
+std::shared_ptr<p::Servant> make_streams_servant(p::Communicator& communicator) {
+  auto s = std::make_shared<p::Servant>(std::string(Streams::type_id));
+  auto state = std::make_shared<StreamsState>();
+  s->implement(Streams::produce, [&communicator, state](std::int64_t bytes, std::int32_t chunk,
+                                                        const p::Current& current) {
+    auto out = p::OutputStream::create(communicator);
+    {
+      std::lock_guard lock(state->mutex);
+      state->last_write.clear();
+    }
+    asio::co_spawn(communicator.executor(),
+                   produce(out, bytes, std::max(chunk, 1), current.connection, state),
+                   asio::detached);
+    return out->ref();
+  });
+  s->implement(Streams::consume, [&communicator](p::StreamRef ref, std::int32_t delay_us,
+                                                 const p::Current& current)
+                                     -> asio::awaitable<std::vector<std::int64_t>> {
+    auto in = p::InputStream::open(communicator, current.connection, ref);
+    Checksum sum;
+    asio::steady_timer pause(communicator.io());
+    try {
+      for (;;) {
+        auto chunk = co_await in->async_read(asio::use_awaitable);
+        if (chunk.empty()) break;
+        sum.add(chunk);
+        if (delay_us > 0) {
+          pause.expires_after(std::chrono::microseconds(delay_us));
+          co_await pause.async_wait(asio::use_awaitable);
+        }
+      }
+    } catch (const std::exception& e) {
+      throw p::RemoteException("test::StreamFailed", e.what());
+    }
+    co_return std::vector<std::int64_t>{static_cast<std::int64_t>(sum.bytes),
+                                        static_cast<std::int64_t>(sum.value)};
+  });
+  s->implement(Streams::memory, [state] {
+    auto kb = memory_kb(true);
+    std::lock_guard lock(state->mutex);
+    std::vector<std::int64_t> out{state->max_queued, kb[0], kb[1]};
+    state->max_queued = 0;
+    return out;
+  });
+  s->implement(Streams::last_write, [state] {
+    std::lock_guard lock(state->mutex);
+    return state->last_write;
   });
   return s;
 }

@@ -4,10 +4,12 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "icars/planet/event.h"
+#include "icars/planet/remote.h"
 #include "icars/planet/servant.h"
 
 namespace planet_test {
@@ -36,6 +38,11 @@ PLANET_VALUED(planet_test::Reading, sensor, path, color, stamp);
 namespace planet_test {
 
 namespace p = icars::planet;
+
+struct Callback {
+  static constexpr std::string_view type_id = "test::Callback";
+  static constexpr p::Operation<std::string(std::string)> notify_me{"notify_me"};
+};
 
 // Echoes every PLANET type back, and a few operations the tests need.
 struct Echo {
@@ -101,15 +108,37 @@ struct Echo {
   static constexpr p::Operation<void(std::int32_t)> block_ms{"block_ms"};
   // Calls `Callback::notify_me` on the object passed by reference, over the caller's link, and
   // returns what it answered.
-  static constexpr p::Operation<std::string(p::ObjectRef, std::string)> call_back{"call_back"};
+  static constexpr p::Operation<std::string(p::Ref<Callback>, std::string)> call_back{
+      "call_back"};
   // The PUN the server sees for the calling connection.
   static constexpr p::Operation<std::string()> caller_pun{"caller_pun"};
 };
 
-struct Callback {
-  static constexpr std::string_view type_id = "test::Callback";
-  static constexpr p::Operation<std::string(std::string)> notify_me{"notify_me"};
+// Stream producer and consumer for the stream tests. The test pattern is byte i = pattern_byte(i).
+struct Streams {
+  static constexpr std::string_view type_id = "test::Streams";
+  // A stream of `bytes` bytes of the test pattern, written in writes of `chunk` bytes.
+  static constexpr p::Operation<p::StreamRef(std::int64_t, std::int32_t)> produce{"produce"};
+  // Reads the stream to its end, pausing `delay_us` after every chunk; returns {bytes,
+  // checksum}, or raises "test::StreamFailed" with the error.
+  static constexpr p::Operation<std::vector<std::int64_t>(p::StreamRef, std::int32_t)> consume{
+      "consume"};
+  // {largest send queue seen on a producing connection, VmHWM kB, VmRSS kB}, then resets both
+  // peaks.
+  static constexpr p::Operation<std::vector<std::int64_t>()> memory{"memory"};
+  // How the last produce ended: "" while it runs, "ok", or the error.
+  static constexpr p::Operation<std::string()> last_write{"last_write"};
 };
+
+std::byte pattern_byte(std::uint64_t i);
+// FNV-1a over a stream, fed chunk by chunk.
+struct Checksum {
+  std::uint64_t value = 14695981039346656037ull;
+  std::uint64_t bytes = 0;
+  void add(std::span<const std::byte> chunk);
+};
+// {VmHWM kB, VmRSS kB} of this process; `reset_peak` then restarts VmHWM from VmRSS.
+std::vector<std::int64_t> memory_kb(bool reset_peak);
 
 }  // namespace planet_test
 namespace icars::planet {
@@ -119,5 +148,6 @@ namespace planet_test {
 
 // The Echo servant. `communicator` is needed for call_back (it calls the caller's object).
 std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator);
+std::shared_ptr<p::Servant> make_streams_servant(p::Communicator& communicator);
 
 }  // namespace planet_test

@@ -38,6 +38,7 @@ int main(int argc, char** argv) {
   options.name = "test-server";
   icars::planet::Communicator communicator(options);
   communicator.adapter().add("/echo", planet_test::make_echo_servant(communicator));
+  communicator.adapter().add("/streams", planet_test::make_streams_servant(communicator));
   const auto bound = communicator.listen("127.0.0.1", port);
   std::cout << "READY " << bound << std::endl;
   int sig = 0;
