@@ -83,6 +83,8 @@ int ChildProcess::wait() {
   return status;
 }
 
+std::string event_subscriber_path() { return PLANET_EVENT_SUBSCRIBER_PATH; }
+
 TestServer start_test_server(std::vector<std::string> extra_args) {
   std::vector<std::string> argv{PLANET_TEST_SERVER_PATH};
   argv.insert(argv.end(), extra_args.begin(), extra_args.end());

@@ -47,6 +47,9 @@ struct TestServer {
 };
 TestServer start_test_server(std::vector<std::string> extra_args = {});
 
+// The path of the subscriber process of the publish/subscribe tests (event_subscriber.cc).
+std::string event_subscriber_path();
+
 // Polls `condition` until it holds or `timeout` passes; returns its last value.
 bool wait_until(const std::function<bool()>& condition,
                 std::chrono::milliseconds timeout = std::chrono::seconds(20));

@@ -31,7 +31,16 @@ struct Reading {
 
 }  // namespace planet_test
 
+namespace planet_test {
+// The event of the publish/subscribe tests: a sequence number and a payload.
+struct Tick {
+  std::int64_t seq = 0;
+  icars::planet::Binary payload;
+};
+}  // namespace planet_test
+
 PLANET_ENUM(planet_test::Color);
+PLANET_EVENT(planet_test::Tick, seq, payload);
 PLANET_VALUED(planet_test::Pose, x, y, theta);
 PLANET_VALUED(planet_test::Reading, sensor, path, color, stamp);
 
@@ -112,6 +121,16 @@ struct Echo {
       "call_back"};
   // The PUN the server sees for the calling connection.
   static constexpr p::Operation<std::string()> caller_pun{"caller_pun"};
+};
+
+// A listener of Ticks (hosted by each subscriber process) and the source it subscribes to.
+struct TickListener {
+  static constexpr std::string_view type_id = "test::TickListener";
+  static constexpr p::OneWay<Tick> on_tick{"on_tick"};
+};
+struct TickSource {
+  static constexpr std::string_view type_id = "test::TickSource";
+  static constexpr p::Operation<void(p::Ref<TickListener>)> subscribe{"subscribe"};
 };
 
 // Stream producer and consumer for the stream tests. The test pattern is byte i = pattern_byte(i).
