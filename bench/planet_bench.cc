@@ -39,6 +39,7 @@
 #include "icars/planet/communicator.h"
 #include "icars/planet/event.h"
 #include "icars/planet/proxy.h"
+#include "icars/planet/stream.h"
 #include "icars/planet/serializer.h"
 #include "test_interfaces.h"
 
@@ -254,6 +255,7 @@ struct PlanetPair {
 
   PlanetPair() {
     server.adapter().add("/echo", planet_test::make_echo_servant(server));
+    server.adapter().add("/streams", planet_test::make_streams_servant(server));
     const std::uint16_t port = server.listen("127.0.0.1", 0);
     peer = client.connect("127.0.0.1", port);
     if (!peer->wait_connected(std::chrono::seconds(5))) {
@@ -508,6 +510,31 @@ void BM_Planet_Binary1MiB(benchmark::State& state) {
   state.SetBytesProcessed(state.iterations() * static_cast<std::int64_t>(kBulkSize));
 }
 BENCHMARK(BM_Planet_Binary1MiB)->UseRealTime();
+
+// One iteration = read 1 MiB from an endless stream the server writes (pulled with the default
+// 1 MiB window, in one-frame DATA chunks).
+void BM_Planet_Stream1MiB(benchmark::State& state) {
+  try {
+    PlanetPair& pair = planet_pair();
+    const p::Proxy streams(pair.client, pair.peer, "/streams");
+    auto in = p::InputStream::open(pair.client, pair.peer,
+                                   streams.call(planet_test::Streams::produce,
+                                                std::int64_t{1} << 50, 1 << 20));
+    for (auto _ : state) {
+      std::size_t got = 0;
+      while (got < kBulkSize) {
+        auto chunk = in->read();
+        if (chunk.empty()) throw std::runtime_error("the endless stream ended");
+        got += chunk.size();
+      }
+    }
+    in->cancel("benchmark done");
+  } catch (const std::exception& e) {
+    skip_with(state, e.what());
+  }
+  state.SetBytesProcessed(state.iterations() * static_cast<std::int64_t>(kBulkSize));
+}
+BENCHMARK(BM_Planet_Stream1MiB)->UseRealTime();
 
 }  // namespace
 

@@ -3,6 +3,7 @@
 # medians plus the PLANET-overhead ratios:
 #   median(PLANET small synchronous call) / median(raw TCP 64-byte ping-pong)
 #   median(PLANET 1 MiB call)             / median(raw TCP 1 MiB transfer)
+#   median(PLANET 1 MiB stream read)      / median(raw TCP 1 MiB transfer)
 #
 # Usage: bench/run.sh [extra planet_bench flags, e.g. --benchmark_filter=PingPong|SyncCall]
 # Environment:
@@ -64,4 +65,6 @@ show("PLANET small synchronous call vs raw TCP ping-pong",
      "BM_Planet_SyncCall/real_time", "BM_RawTcp_PingPong64/real_time")
 show("PLANET 1 MiB binary call vs raw TCP 1 MiB transfer",
      "BM_Planet_Binary1MiB/real_time", "BM_RawTcp_Bulk1MiB/real_time")
+show("PLANET 1 MiB read from a stream vs raw TCP 1 MiB transfer",
+     "BM_Planet_Stream1MiB/real_time", "BM_RawTcp_Bulk1MiB/real_time")
 PY
