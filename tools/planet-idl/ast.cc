@@ -1,5 +1,7 @@
 #include "ast.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 
 namespace icars::planet::idl {
@@ -42,7 +44,7 @@ const Interface& Type::interface() const { return static_cast<const Interface&>(
 std::string Type::to_idl() const {
   switch (kind) {
     case Kind::builtin: return std::string(idl_name(builtin));
-    case Kind::sequence: return "sequence<" + element->to_idl() + ">";
+    case Kind::sequence: return fmt::format("sequence<{}>", element->to_idl());
     case Kind::named: return definition->qualified_name;
   }
   return "?";

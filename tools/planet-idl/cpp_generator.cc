@@ -37,7 +37,7 @@ std::string_view builtin_cpp(Builtin b) {
 std::string wire_type(const Type& t) {
   switch (t.kind) {
     case Type::Kind::builtin: return std::string(builtin_cpp(t.builtin));
-    case Type::Kind::sequence: return "std::vector<" + wire_type(*t.element) + ">";
+    case Type::Kind::sequence: return fmt::format("std::vector<{}>", wire_type(*t.element));
     case Type::Kind::named:
       if (t.is_interface()) return fmt::format("{}Ref<{}>", kPlanet, cpp_name(*t.definition));
       return cpp_name(*t.definition);
@@ -109,7 +109,10 @@ constexpr std::size_t kLineLimit = 100;
 std::string wrap(std::string_view indent, std::string_view head,
                  const std::vector<std::string>& items, std::string_view tail) {
   std::string one_line;
-  for (const std::string& item : items) one_line += (one_line.empty() ? "" : ", ") + item;
+  for (const std::string& item : items) {
+    if (!one_line.empty()) one_line += ", ";
+    one_line += item;
+  }
   if (indent.size() + head.size() + one_line.size() + tail.size() + 2 <= kLineLimit) {
     return fmt::format("{}{}({}){}", indent, head, one_line, tail);
   }
@@ -517,7 +520,9 @@ void Generator::write_servant_class(const Interface& i) {
       return servant_param(p.type) + " " + p.name;
     });
     params.emplace_back("const icars::planet::Current& current");
-    h_ += "\n" + wrap("  ", "virtual " + wire_type(op.result) + " " + op.name, params, " = 0;\n");
+    h_ += "\n";
+    const std::string head = fmt::format("virtual {} {}", wire_type(op.result), op.name);
+    h_ += wrap("  ", head, params, " = 0;\n");
   }
   h_ += "};\n\n";
 }
@@ -606,8 +611,9 @@ void Generator::write_servant_constructor(const Interface& i) {
     args.emplace_back("current");
     cc_ += fmt::format("  implement({},\n", constant_name(i, *m.owner, op));
     cc_ += wrap("            ", "[this]", params, " {\n");
-    cc_ += wrap("              ", (op.result.is_void() ? "" : "return ") + std::string("this->") + op.name,
-                args, ";\n            });\n");
+    cc_ += wrap("              ",
+                fmt::format("{}this->{}", op.result.is_void() ? "" : "return ", op.name), args,
+                ";\n            });\n");
   }
   cc_ += "}\n\n";
 }

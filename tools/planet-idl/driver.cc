@@ -78,9 +78,15 @@ bool write_if_changed(const fs::path& path, std::string_view content) {
 std::string make_dependency_rule(const std::vector<std::string>& targets,
                                  const std::vector<std::string>& dependencies) {
   std::string out;
-  for (const std::string& t : targets) out += (out.empty() ? "" : " ") + escape_for_make(t);
+  for (const std::string& t : targets) {
+    if (!out.empty()) out += ' ';
+    out += escape_for_make(t);
+  }
   out += ":";
-  for (const std::string& d : dependencies) out += " \\\n  " + escape_for_make(d);
+  for (const std::string& d : dependencies) {
+    out += " \\\n  ";
+    out += escape_for_make(d);
+  }
   return out + "\n";
 }
 

@@ -4,6 +4,7 @@
 // exceptions arrive as their generated classes, a oneway call arrives, a listener living in the
 // caller is passed by reference and called back, an interface result arrives as a bound proxy
 // and streams pass in both directions.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -46,7 +47,7 @@ class TV final : public home::TVServant {
 
   std::int32_t set_channel(std::int32_t channel, const p::Current&) override {
     if (channel < 0 || channel > 99) {
-      throw NoSuchChannel(channel, "there is no channel " + std::to_string(channel));
+      throw NoSuchChannel(channel, fmt::format("there is no channel {}", channel));
     }
     return channel;
   }

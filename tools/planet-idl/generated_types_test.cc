@@ -2,6 +2,7 @@
 // serializer with the expected descriptor, typed events are ordinary PLANET events readable by
 // property name, generated exceptions survive the trip through RemoteException, and interface
 // descriptions carry the declared signatures and exception translators.
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <cstdint>
@@ -229,11 +230,11 @@ TEST(GeneratedInterface, TranslatorsTurnRemoteExceptionsIntoGeneratedClasses) {
     } catch (const Failed&) {
       return std::string("Failed");
     } catch (const NoSuchChannel& n) {
-      return "NoSuchChannel " + std::to_string(n.channel());
+      return fmt::format("NoSuchChannel {}", n.channel());
     } catch (const p::RemoteException& other) {
       return "RemoteException " + other.type_id();
     } catch (const p::Error& error) {
-      return "Error " + std::string(p::to_string(error.kind()));
+      return fmt::format("Error {}", p::to_string(error.kind()));
     }
   };
   EXPECT_EQ(rethrown(Busy("tv", 1, Color::red, {})), "Busy tv");
@@ -245,3 +246,24 @@ TEST(GeneratedInterface, TranslatorsTurnRemoteExceptionsIntoGeneratedClasses) {
 
 }  // namespace
 }  // namespace fixture
+
+// testdata/names.idl exists to make the generated code compile despite hostile names; this
+// only checks that the names ended up where the IDL put them.
+#include "names.planet.h"
+
+namespace names {
+namespace {
+
+TEST(GeneratedNames, HostileNamesMapOneToOne) {
+  static_assert(std::is_same_v<decltype(Pose{}.inner), fixture::Pose>);
+  static_assert(std::is_same_v<decltype(Pose{}.outer), ::fixture::Pose>);
+  EXPECT_EQ(Pose{}.kind, Kind::value);
+  EXPECT_EQ(Shadows::Pose.name(), "Pose");
+  const Problem problem(3, Kind::result, "v");
+  EXPECT_EQ(problem.channel(), 3);
+  EXPECT_EQ(problem.result(), Kind::result);
+  EXPECT_EQ(problem.value(), "v");
+}
+
+}  // namespace
+}  // namespace names

@@ -126,7 +126,7 @@ class Lexer {
       case '=': return TokenKind::equals;
       case '-': return TokenKind::minus;
       default:
-        throw CompileError(where, "unexpected character " + quote(std::string_view(&c, 1)),
+        throw CompileError(where, fmt::format("unexpected character {}", quote(std::string_view(&c, 1))),
                            std::string(kTokenStart));
     }
   }
@@ -156,7 +156,7 @@ class Lexer {
       advance();
     }
     if (is_letter(peek())) {
-      throw CompileError(here(), "unexpected " + quote(std::string_view(&text_[pos_], 1)) + " in a number",
+      throw CompileError(here(), fmt::format("unexpected {} in a number", quote(std::string_view(&text_[pos_], 1))),
                          "a digit or a separator");
     }
     Token t = make(TokenKind::integer, start, where);

@@ -144,7 +144,7 @@ class FileParser {
     return advance();
   }
   [[noreturn]] static void unexpected(const Token& t, std::string_view expected) {
-    throw CompileError(t.location, "unexpected " + describe(t), std::string(expected));
+    throw CompileError(t.location, fmt::format("unexpected {}", describe(t)), std::string(expected));
   }
   void fail_if_unclosed(std::string_view what, const Definition& d) const {
     if (!peek().is(TokenKind::end_of_file)) return;
@@ -185,7 +185,10 @@ class FileParser {
     name.location = peek().location;
     name.absolute = accept(TokenKind::scope);
     name.text = take_name(role);
-    while (accept(TokenKind::scope)) name.text += "::" + take_name(role);
+    while (accept(TokenKind::scope)) {
+      name.text += "::";
+      name.text += take_name(role);
+    }
     return name;
   }
   const Definition* lookup(const ScopedName& name) const {
@@ -239,7 +242,7 @@ class Loader {
     std::optional<std::string> text = reader_.read(main);
     if (!text) {
       const std::string path = main.string();
-      throw CompileError(SourceLocation{path, 0, 0}, "cannot read " + quote(path),
+      throw CompileError(SourceLocation{path, 0, 0}, fmt::format("cannot read {}", quote(path)),
                          "a readable IDL file");
     }
     program_.main = &parse(main.string(), std::move(*text), reader_.identity(main));
@@ -289,7 +292,8 @@ class Loader {
     std::string searched;
     for (const fs::path& candidate : candidates) {
       if (std::optional<std::string> text = reader_.read(candidate)) return {candidate, *text};
-      searched += (searched.empty() ? "" : ", ") + candidate.string();
+      if (!searched.empty()) searched += ", ";
+      searched += candidate.string();
     }
     throw CompileError(name.location,
                        fmt::format("cannot find include file \"{}\" (searched {})", name.text,
@@ -627,6 +631,12 @@ Parameter FileParser::parse_parameter(const Operation& op) {
     throw CompileError(name_token.location,
                        fmt::format("parameter name '{}' is used by the generated methods", name),
                        "a name other than current and token");
+  }
+  // Inside a generated XPrx or XServant class, a parameter of that name would hide the class.
+  if (name.ends_with("Prx") || name.ends_with("Servant")) {
+    throw CompileError(name_token.location,
+                       fmt::format("parameter name '{}' ends like a generated class name", name),
+                       "a name that does not end in Prx or Servant");
   }
   for (const Parameter& other : op.parameters) {
     if (other.name == name) {

@@ -3,6 +3,7 @@
 // robustness against truncated, garbage and deeply nested input.
 #include "parser.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -271,6 +272,9 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"interface I { void f(int current); };",
                 "main.idl:1:26: error: parameter name 'current' is used by the generated "
                 "methods, expected a name other than current and token"},
+        BadCase{"interface I { void f(int IPrx); };",
+                "main.idl:1:26: error: parameter name 'IPrx' ends like a generated class name, "
+                "expected a name that does not end in Prx or Servant"},
         BadCase{"interface I { void f(void v); };",
                 "main.idl:1:22: error: 'void' cannot be a parameter type, expected a data type "
                 "(bool, byte, short, int, long, float, double, string, binary, a sequence, an "
@@ -366,12 +370,14 @@ TEST(ParserRobustness, DeepNestingIsAnErrorNotAStackOverflow) {
   EXPECT_NE(error_of(sequences).find("sequences nested deeper than 32 levels"), std::string::npos);
   std::string ok = "valued P { ";
   for (int i = 0; i < 32; ++i) ok += "sequence<";
-  ok += "int" + std::string(32, '>') + " x; };";
+  ok += "int";
+  ok += std::string(32, '>');
+  ok += " x; };";
   EXPECT_NO_THROW(parse(ok));
   std::map<std::string, std::string> chain;
   for (int i = 0; i < 100; ++i) {
     chain[i == 0 ? "main.idl" : std::to_string(i) + ".idl"] =
-        "include \"" + std::to_string(i + 1) + ".idl\";";
+        fmt::format("include \"{}.idl\";", i + 1);
   }
   EXPECT_NE(error_of(chain).find("includes nested deeper than 32 files"), std::string::npos);
 }
