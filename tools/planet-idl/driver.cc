@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <system_error>
 
+#include <unistd.h>
+
 #include "cpp_generator.h"
 #include "diagnostic.h"
 #include "parser.h"
@@ -64,7 +66,8 @@ bool write_if_changed(const fs::path& path, std::string_view content) {
   }
   std::error_code ec;
   if (path.has_parent_path()) fs::create_directories(path.parent_path(), ec);
-  const fs::path temporary = path.string() + ".tmp";
+  // Unique per process, so two compilers writing the same output cannot mix their bytes.
+  const fs::path temporary = fmt::format("{}.{}.tmp", path.string(), ::getpid());
   {
     std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
     out.write(content.data(), static_cast<std::streamsize>(content.size()));

@@ -39,9 +39,10 @@ constexpr std::array<std::string_view, 92> kCppKeywords = {
 // Names the generated code relies on at namespace scope.
 constexpr std::array<std::string_view, 3> kReservedNames = {"std", "icars", "asio"};
 // Members of the generated proxy and servant (and their bases) an operation must not hide.
-constexpr std::array<std::string_view, 14> kReservedOperationNames = {
-    "call",  "async_call", "notify",  "ref",          "communicator", "link",      "path",
-    "object", "timeout",   "with_timeout", "implement", "dispatch",    "type_id",   "has_method"};
+constexpr std::array<std::string_view, 18> kReservedOperationNames = {
+    "call",       "async_call", "notify",      "ref",       "communicator", "link",
+    "path",       "object",     "timeout",     "with_timeout", "set_timeout", "bound",
+    "implement",  "dispatch",   "type_id",     "has_method", "bind_result",  "async_call_bound"};
 // Parameters the generated methods add after the operation's own.
 constexpr std::array<std::string_view, 2> kReservedParameterNames = {"current", "token"};
 // Members of RemoteException and the generated exception constructor.
@@ -597,8 +598,9 @@ void FileParser::check_operation_name(const Interface& i, const Token& name_toke
                        fmt::format("operation name '{}' is used by the generated C++ classes",
                                    name),
                        "another name (not call, async_call, notify, ref, communicator, link, "
-                       "path, object, timeout, with_timeout, implement, dispatch, type_id, "
-                       "has_method or the interface's own names)");
+                       "path, object, timeout, with_timeout, set_timeout, bound, implement, "
+                       "dispatch, type_id, has_method, bind_result, async_call_bound or the "
+                       "interface's own names)");
   }
   for (const Interface::Member& m : i.all_operations()) {
     const std::string& other = m.operation->name;

@@ -264,8 +264,9 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"interface I { void call(); };",
                 "main.idl:1:20: error: operation name 'call' is used by the generated C++ "
                 "classes, expected another name (not call, async_call, notify, ref, "
-                "communicator, link, path, object, timeout, with_timeout, implement, dispatch, "
-                "type_id, has_method or the interface's own names)"},
+                "communicator, link, path, object, timeout, with_timeout, set_timeout, bound, "
+                "implement, dispatch, type_id, has_method, bind_result, async_call_bound or the "
+                "interface's own names)"},
         BadCase{"interface I { void f(int a, int a); };",
                 "main.idl:1:33: error: parameter 'a' is already declared at main.idl:1:26, "
                 "expected a name not yet used in operation 'f'"},
