@@ -8,29 +8,46 @@ namespace icars::planet::idl {
 
 std::string_view idl_name(Builtin type) {
   switch (type) {
-    case Builtin::void_type: return "void";
-    case Builtin::boolean: return "bool";
-    case Builtin::byte: return "byte";
-    case Builtin::short_int: return "short";
-    case Builtin::int32: return "int";
-    case Builtin::int64: return "long";
-    case Builtin::float32: return "float";
-    case Builtin::float64: return "double";
-    case Builtin::string: return "string";
-    case Builtin::binary: return "binary";
-    case Builtin::stream: return "stream";
+    case Builtin::void_type:
+      return "void";
+    case Builtin::boolean:
+      return "bool";
+    case Builtin::byte:
+      return "byte";
+    case Builtin::short_int:
+      return "short";
+    case Builtin::int32:
+      return "int";
+    case Builtin::int64:
+      return "long";
+    case Builtin::float32:
+      return "float";
+    case Builtin::float64:
+      return "double";
+    case Builtin::string:
+      return "string";
+    case Builtin::binary:
+      return "binary";
+    case Builtin::stream:
+      return "stream";
   }
   return "?";
 }
 
 std::string_view idl_name(DefinitionKind kind) {
   switch (kind) {
-    case DefinitionKind::module: return "module";
-    case DefinitionKind::enumeration: return "enum";
-    case DefinitionKind::valued: return "valued";
-    case DefinitionKind::event: return "event";
-    case DefinitionKind::exception: return "exception";
-    case DefinitionKind::interface: return "interface";
+    case DefinitionKind::module:
+      return "module";
+    case DefinitionKind::enumeration:
+      return "enum";
+    case DefinitionKind::valued:
+      return "valued";
+    case DefinitionKind::event:
+      return "event";
+    case DefinitionKind::exception:
+      return "exception";
+    case DefinitionKind::interface:
+      return "interface";
   }
   return "?";
 }
@@ -43,9 +60,12 @@ const Interface& Type::interface() const { return static_cast<const Interface&>(
 
 std::string Type::to_idl() const {
   switch (kind) {
-    case Kind::builtin: return std::string(idl_name(builtin));
-    case Kind::sequence: return fmt::format("sequence<{}>", element->to_idl());
-    case Kind::named: return definition->qualified_name;
+    case Kind::builtin:
+      return std::string(idl_name(builtin));
+    case Kind::sequence:
+      return fmt::format("sequence<{}>", element->to_idl());
+    case Kind::named:
+      return definition->qualified_name;
   }
   return "?";
 }

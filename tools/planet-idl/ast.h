@@ -34,7 +34,14 @@ enum class Builtin : std::uint8_t {
 
 std::string_view idl_name(Builtin type);  // "void", "bool", ...
 
-enum class DefinitionKind : std::uint8_t { module, enumeration, valued, event, exception, interface };
+enum class DefinitionKind : std::uint8_t {
+  module,
+  enumeration,
+  valued,
+  event,
+  exception,
+  interface
+};
 
 std::string_view idl_name(DefinitionKind kind);  // "module", "enum", "valued", ...
 

@@ -2,7 +2,6 @@
 // code 1 and print the error the file announces in its first line:
 //   // expect: <file>:<line>:<column>: error: <message substring>
 #include <gtest/gtest.h>
-
 #include <sys/wait.h>
 
 #include <algorithm>
@@ -41,12 +40,13 @@ struct Outcome {
 
 // Runs planet-idl in the fixtures' directory, so messages name files as they are written there.
 Outcome compile(const std::string& name) {
-  const fs::path out = fs::temp_directory_path() / ("planet_idl_bad_" + fs::path(name).stem().string());
+  const fs::path out =
+      fs::temp_directory_path() / ("planet_idl_bad_" + fs::path(name).stem().string());
   fs::create_directories(out);
   const fs::path errors = out / "stderr.txt";
-  const std::string command = "cd '" + kBadDir.string() + "' && '" PLANET_IDL_EXECUTABLE
-                              "' --output-dir '" + out.string() + "' '" + name + "' 2> '" +
-                              errors.string() + "'";
+  const std::string command = "cd '" + kBadDir.string() +
+                              "' && '" PLANET_IDL_EXECUTABLE "' --output-dir '" + out.string() +
+                              "' '" + name + "' 2> '" + errors.string() + "'";
   const int status = std::system(command.c_str());
   Outcome run;
   run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
@@ -59,8 +59,10 @@ class BadInput : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(BadInput, FailsWithTheAnnouncedError) {
   const std::string text = read(kBadDir / GetParam());
-  ASSERT_EQ(text.rfind(kExpectPrefix, 0), 0u) << GetParam() << " must start with '" << kExpectPrefix << "'";
-  const std::string expected = text.substr(kExpectPrefix.size(), text.find('\n') - kExpectPrefix.size());
+  ASSERT_EQ(text.rfind(kExpectPrefix, 0), 0u)
+      << GetParam() << " must start with '" << kExpectPrefix << "'";
+  const std::string expected =
+      text.substr(kExpectPrefix.size(), text.find('\n') - kExpectPrefix.size());
   const Outcome run = compile(GetParam());
   EXPECT_EQ(run.exit_code, 1) << run.errors;
   EXPECT_NE(run.errors.find(expected), std::string::npos)
@@ -71,8 +73,10 @@ TEST_P(BadInput, FailsWithTheAnnouncedError) {
 INSTANTIATE_TEST_SUITE_P(Fixtures, BadInput, ::testing::ValuesIn(bad_files()),
                          [](const ::testing::TestParamInfo<std::string>& param) {
                            std::string name = fs::path(param.param).stem().string();
-                           std::replace_if(name.begin(), name.end(),
-                                           [](char c) { return !std::isalnum(static_cast<unsigned char>(c)); }, '_');
+                           std::replace_if(
+                               name.begin(), name.end(),
+                               [](char c) { return !std::isalnum(static_cast<unsigned char>(c)); },
+                               '_');
                            return name;
                          });
 

@@ -18,17 +18,28 @@ std::string cpp_name(const Definition& d) { return "::" + d.qualified_name; }
 
 std::string_view builtin_cpp(Builtin b) {
   switch (b) {
-    case Builtin::void_type: return "void";
-    case Builtin::boolean: return "bool";
-    case Builtin::byte: return "std::uint8_t";
-    case Builtin::short_int: return "std::int16_t";
-    case Builtin::int32: return "std::int32_t";
-    case Builtin::int64: return "std::int64_t";
-    case Builtin::float32: return "float";
-    case Builtin::float64: return "double";
-    case Builtin::string: return "std::string";
-    case Builtin::binary: return "icars::planet::Binary";
-    case Builtin::stream: return "icars::planet::StreamRef";
+    case Builtin::void_type:
+      return "void";
+    case Builtin::boolean:
+      return "bool";
+    case Builtin::byte:
+      return "std::uint8_t";
+    case Builtin::short_int:
+      return "std::int16_t";
+    case Builtin::int32:
+      return "std::int32_t";
+    case Builtin::int64:
+      return "std::int64_t";
+    case Builtin::float32:
+      return "float";
+    case Builtin::float64:
+      return "double";
+    case Builtin::string:
+      return "std::string";
+    case Builtin::binary:
+      return "icars::planet::Binary";
+    case Builtin::stream:
+      return "icars::planet::StreamRef";
   }
   return "void";
 }
@@ -36,8 +47,10 @@ std::string_view builtin_cpp(Builtin b) {
 // The type as it travels: in struct fields, Operation signatures and servant results.
 std::string wire_type(const Type& t) {
   switch (t.kind) {
-    case Type::Kind::builtin: return std::string(builtin_cpp(t.builtin));
-    case Type::Kind::sequence: return fmt::format("std::vector<{}>", wire_type(*t.element));
+    case Type::Kind::builtin:
+      return std::string(builtin_cpp(t.builtin));
+    case Type::Kind::sequence:
+      return fmt::format("std::vector<{}>", wire_type(*t.element));
     case Type::Kind::named:
       if (t.is_interface()) return fmt::format("{}Ref<{}>", kPlanet, cpp_name(*t.definition));
       return cpp_name(*t.definition);
@@ -207,8 +220,7 @@ class Generator {
   void write_interfaces();
   void write_interface_description(const Interface& i);
   void write_proxy(const Interface& i);
-  void write_proxy_operation(const Interface& proxied, const Interface& owner,
-                             const Operation& op);
+  void write_proxy_operation(const Interface& proxied, const Interface& owner, const Operation& op);
   void write_proxy_binding_helpers();
   void write_servant_class(const Interface& i);
   void write_source_prologue(const std::string& header_name);
@@ -248,8 +260,9 @@ void Generator::write_header_prologue() {
   if (interfaces) h_ += "#include <type_traits>\n#include <utility>\n";
   h_ += "#include <vector>\n\n";
   if (interfaces) {
-    h_ += "#include <asio/associated_executor.hpp>\n#include <asio/async_result.hpp>\n"
-          "#include <asio/dispatch.hpp>\n#include <asio/executor_work_guard.hpp>\n\n";
+    h_ +=
+        "#include <asio/associated_executor.hpp>\n#include <asio/async_result.hpp>\n"
+        "#include <asio/dispatch.hpp>\n#include <asio/executor_work_guard.hpp>\n\n";
   }
   h_ += "#include \"icars/planet/event.h\"\n";
   if (interfaces) h_ += "#include \"icars/planet/proxy.h\"\n#include \"icars/planet/remote.h\"\n";
@@ -257,7 +270,6 @@ void Generator::write_header_prologue() {
   if (interfaces) h_ += "#include \"icars/planet/servant.h\"\n";
   if (uses_streams()) h_ += "#include \"icars/planet/stream.h\"\n";
   for (const Include& include : file_.includes) {
-    if (include.written.empty()) continue;
     h_ += fmt::format("#include \"{}\"\n", header_name_for(include.file->path));
   }
   h_ += "\n";
@@ -305,13 +317,13 @@ void Generator::write_struct(const Struct& s) {
 void Generator::write_exception_class(const Struct& s) {
   h_ += fmt::format("class {} : public icars::planet::RemoteException {{\n public:\n", s.name);
   h_ += fmt::format("  static constexpr std::string_view type_id = \"{}\";\n\n", s.qualified_name);
-  std::vector<std::string> params = map(s.fields, [](const Field& f) {
-    return stub_param(f.type) + " " + f.name;
-  });
+  std::vector<std::string> params =
+      map(s.fields, [](const Field& f) { return stub_param(f.type) + " " + f.name; });
   params.emplace_back("std::string message = {}");
   h_ += wrap("  ", "explicit " + s.name, params, ";\n");
-  h_ += "  // Reads the fields back from the exception as it arrived; throws Error(bad_data) when\n"
-        "  // one is missing or has another type.\n";
+  h_ +=
+      "  // Reads the fields back from the exception as it arrived; throws Error(bad_data) when\n"
+      "  // one is missing or has another type.\n";
   h_ += fmt::format("  explicit {}(const icars::planet::RemoteException& wire);\n", s.name);
   if (!s.fields.empty()) h_ += "\n";
   for (const Field& f : s.fields) {
@@ -331,17 +343,20 @@ void Generator::write_specialisations() {
     if (k == DefinitionKind::interface || k == DefinitionKind::exception) continue;
     any = true;
     const std::string type = cpp_name(*d);
-    h_ += fmt::format("template <>\nstruct icars::planet::TypeName<{}> {{\n"
-                      "  static constexpr std::string_view value = \"{}\";\n}};\n",
-                      type, d->qualified_name);
+    h_ += fmt::format(
+        "template <>\nstruct icars::planet::TypeName<{}> {{\n"
+        "  static constexpr std::string_view value = \"{}\";\n}};\n",
+        type, d->qualified_name);
     if (k == DefinitionKind::enumeration) continue;
     const auto& s = static_cast<const Struct&>(*d);
     const bool event = k == DefinitionKind::event;
     const std::vector<std::string> members = map(s.fields, [&](const Field& f) {
-      if (event) return fmt::format("icars::planet::event_field(\"{}\", &{}::{})", f.name, type, f.name);
+      if (event)
+        return fmt::format("icars::planet::event_field(\"{}\", &{}::{})", f.name, type, f.name);
       return fmt::format("&{}::{}", type, f.name);
     });
-    h_ += fmt::format("template <>\nstruct icars::planet::{}<{}> {{\n", event ? "EventFields" : "ValuedFields", type);
+    h_ += fmt::format("template <>\nstruct icars::planet::{}<{}> {{\n",
+                      event ? "EventFields" : "ValuedFields", type);
     h_ += wrap("  ", "static constexpr auto value = std::make_tuple", members, ";\n");
     h_ += "};\n";
   }
@@ -364,9 +379,8 @@ void Generator::write_interfaces() {
 }
 
 std::string operation_constant(const Interface& i, const Operation& op) {
-  const std::string args = join(op.parameters, ", ", [](const Parameter& p) {
-    return wire_type(p.type);
-  });
+  const std::string args =
+      join(op.parameters, ", ", [](const Parameter& p) { return wire_type(p.type); });
   std::string type;
   std::string init;
   if (op.oneway) {
@@ -386,14 +400,15 @@ std::string operation_constant(const Interface& i, const Operation& op) {
 void Generator::write_interface_description(const Interface& i) {
   for (const Operation& op : i.operations) {
     if (op.raises.empty()) continue;
-    h_ += fmt::format("// Turns the exceptions '{}' raises into their generated classes.\n", op.name);
+    h_ +=
+        fmt::format("// Turns the exceptions '{}' raises into their generated classes.\n", op.name);
     h_ += fmt::format("std::exception_ptr {}(const icars::planet::RemoteException& e);\n\n",
                       translator_name(i, op));
   }
   h_ += fmt::format("// The operations of interface {}, shared by proxies and servants.\n",
                     i.qualified_name);
-  h_ += fmt::format("struct {} {{\n  static constexpr std::string_view type_id = \"{}\";\n",
-                    i.name, i.qualified_name);
+  h_ += fmt::format("struct {} {{\n  static constexpr std::string_view type_id = \"{}\";\n", i.name,
+                    i.qualified_name);
   for (const Operation& op : i.operations) {
     h_ += operation_constant(i, op);
   }
@@ -404,16 +419,18 @@ void Generator::write_proxy(const Interface& i) {
   h_ += fmt::format("// Calls a remote {}.\n", i.qualified_name);
   h_ += fmt::format("class {}Prx : public icars::planet::Proxy {{\n public:\n", i.name);
   h_ += fmt::format("  using Proxy::Proxy;\n  {}Prx() = default;\n", i.name);
-  h_ += fmt::format("  // Binds a reference that arrived over `via` (for a servant: current.connection).\n"
-                    "  {0}Prx(icars::planet::Communicator& communicator,\n"
-                    "      std::shared_ptr<icars::planet::Link> via,\n"
-                    "      const icars::planet::Ref<{0}>& ref)\n"
-                    "      : Proxy(communicator, std::move(via), ref.object()) {{}}\n\n",
-                    i.name);
-  h_ += fmt::format("  // A reference to this object, to pass to other operations.\n"
-                    "  icars::planet::Ref<{0}> ref() const {{\n"
-                    "    return icars::planet::Ref<{0}>(object({0}::type_id));\n  }}\n",
-                    i.name);
+  h_ += fmt::format(
+      "  // Binds a reference that arrived over `via` (for a servant: current.connection).\n"
+      "  {0}Prx(icars::planet::Communicator& communicator,\n"
+      "      std::shared_ptr<icars::planet::Link> via,\n"
+      "      const icars::planet::Ref<{0}>& ref)\n"
+      "      : Proxy(communicator, std::move(via), ref.object()) {{}}\n\n",
+      i.name);
+  h_ += fmt::format(
+      "  // A reference to this object, to pass to other operations.\n"
+      "  icars::planet::Ref<{0}> ref() const {{\n"
+      "    return icars::planet::Ref<{0}>(object({0}::type_id));\n  }}\n",
+      i.name);
   bool binds = false;
   for (const Interface::Member& m : i.all_operations()) {
     write_proxy_operation(i, *m.owner, *m.operation);
@@ -433,9 +450,8 @@ std::string constant_name(const Interface& proxied, const Interface& owner, cons
 void Generator::write_proxy_operation(const Interface& proxied, const Interface& owner,
                                       const Operation& op) {
   const std::string constant = constant_name(proxied, owner, op);
-  std::vector<std::string> params = map(op.parameters, [](const Parameter& p) {
-    return stub_param(p.type) + " " + p.name;
-  });
+  std::vector<std::string> params =
+      map(op.parameters, [](const Parameter& p) { return stub_param(p.type) + " " + p.name; });
   std::vector<std::string> call_args{constant};
   for (const Parameter& p : op.parameters) call_args.push_back(p.name);
   h_ += "\n";
@@ -453,13 +469,13 @@ void Generator::write_proxy_operation(const Interface& proxied, const Interface&
   } else {
     h_ += wrap("    ", ret + "this->call", call_args, ";\n  }\n");
   }
-  h_ += fmt::format("  // Completion signature void(std::exception_ptr{}).\n  template <class Token>\n",
-                    op.result.is_void() ? "" : ", " + result);
+  h_ += fmt::format(
+      "  // Completion signature void(std::exception_ptr{}).\n  template <class Token>\n",
+      op.result.is_void() ? "" : ", " + result);
   params.emplace_back("Token&& token");
   h_ += wrap("  ", "auto " + op.name + "_async", params, " const {\n");
-  const std::string async = is_bound(op.result)
-                                ? fmt::format("async_call_bound<{}>", result)
-                                : std::string("async_call");
+  const std::string async =
+      is_bound(op.result) ? fmt::format("async_call_bound<{}>", result) : std::string("async_call");
   const std::string args = join(op.parameters, ", ", [](const Parameter& p) { return p.name; });
   h_ += wrap("    ", "return this->" + async,
              {constant, "{" + args + "}", "std::forward<Token>(token)"}, ";\n  }\n");
@@ -516,9 +532,8 @@ void Generator::write_servant_class(const Interface& i) {
   h_ += fmt::format("  {}Servant();\n", i.name);
   for (const Interface::Member& m : i.all_operations()) {
     const Operation& op = *m.operation;
-    std::vector<std::string> params = map(op.parameters, [](const Parameter& p) {
-      return servant_param(p.type) + " " + p.name;
-    });
+    std::vector<std::string> params =
+        map(op.parameters, [](const Parameter& p) { return servant_param(p.type) + " " + p.name; });
     params.emplace_back("const icars::planet::Current& current");
     h_ += "\n";
     const std::string head = fmt::format("virtual {} {}", wire_type(op.result), op.name);
@@ -553,38 +568,42 @@ void Generator::write_source_bodies() {
 }
 
 void Generator::write_exception_bodies(const Struct& s) {
-  std::vector<std::string> params = map(s.fields, [](const Field& f) {
-    return stub_param(f.type) + " " + f.name;
-  });
+  std::vector<std::string> params =
+      map(s.fields, [](const Field& f) { return stub_param(f.type) + " " + f.name; });
   params.emplace_back("std::string message");
   cc_ += wrap("", s.name + "::" + s.name, params, "\n");
   std::string properties = "icars::planet::Properties()";
   for (const Field& f : s.fields) {
     properties += fmt::format("\n                          .set(\"{}\", {})", f.name, f.name);
   }
-  cc_ += fmt::format("    : RemoteException(std::string(type_id), std::move(message),\n"
-                     "                      {})", properties);
+  cc_ += fmt::format(
+      "    : RemoteException(std::string(type_id), std::move(message),\n"
+      "                      {})",
+      properties);
   for (const Field& f : s.fields) cc_ += fmt::format(",\n      {}_({})", f.name, f.name);
   cc_ += " {}\n\n";
-  cc_ += fmt::format("{0}::{0}(const icars::planet::RemoteException& wire)\n    : RemoteException(wire)",
-                     s.name);
+  cc_ += fmt::format(
+      "{0}::{0}(const icars::planet::RemoteException& wire)\n    : RemoteException(wire)", s.name);
   for (const Field& f : s.fields) {
-    cc_ += fmt::format(",\n      {}_(wire.properties().get<{}>(\"{}\"))", f.name,
-                       wire_type(f.type), f.name);
+    cc_ += fmt::format(",\n      {}_(wire.properties().get<{}>(\"{}\"))", f.name, wire_type(f.type),
+                       f.name);
   }
   cc_ += " {}\n\n";
 }
 
 void Generator::write_translator(const Interface& i, const Operation& op) {
-  cc_ += fmt::format("std::exception_ptr {}(const icars::planet::RemoteException& e) {{\n  try {{\n",
-                     translator_name(i, op));
+  cc_ +=
+      fmt::format("std::exception_ptr {}(const icars::planet::RemoteException& e) {{\n  try {{\n",
+                  translator_name(i, op));
   for (const Struct* x : op.raises) {
-    cc_ += fmt::format("    if (e.type_id() == {0}::type_id) return std::make_exception_ptr({0}(e));\n",
-                       cpp_name(*x));
+    cc_ += fmt::format(
+        "    if (e.type_id() == {0}::type_id) return std::make_exception_ptr({0}(e));\n",
+        cpp_name(*x));
   }
-  cc_ += "  } catch (...) {\n"
-         "    return std::current_exception();  // the exception's fields did not decode\n"
-         "  }\n  return std::make_exception_ptr(e);\n}\n\n";
+  cc_ +=
+      "  } catch (...) {\n"
+      "    return std::current_exception();  // the exception's fields did not decode\n"
+      "  }\n  return std::make_exception_ptr(e);\n}\n\n";
 }
 
 std::string servant_argument(const Parameter& p) {
@@ -593,8 +612,10 @@ std::string servant_argument(const Parameter& p) {
                        proxy_class(*p.type.definition), p.name);
   }
   if (p.type.is_stream()) {
-    return fmt::format("icars::planet::InputStream::open(*current.communicator, "
-                       "current.connection, {})", p.name);
+    return fmt::format(
+        "icars::planet::InputStream::open(*current.communicator, "
+        "current.connection, {})",
+        p.name);
   }
   return p.name;
 }

@@ -1,6 +1,7 @@
 #include "driver.h"
 
 #include <fmt/format.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <fstream>
@@ -8,8 +9,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <system_error>
-
-#include <unistd.h>
 
 #include "cpp_generator.h"
 #include "diagnostic.h"
@@ -74,7 +73,8 @@ bool write_if_changed(const fs::path& path, std::string_view content) {
     if (!out) throw std::runtime_error(fmt::format("cannot write '{}'", temporary.string()));
   }
   fs::rename(temporary, path, ec);  // atomic: a concurrent reader sees old or new, never half
-  if (ec) throw std::runtime_error(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
+  if (ec)
+    throw std::runtime_error(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
   return true;
 }
 
@@ -104,8 +104,8 @@ int run_driver(const DriverOptions& options, std::ostream& errors) {
       errors << e.what() << '\n';
       status = 1;
     } catch (const std::exception& e) {
-      errors << fmt::format("{}: error: {}, expected a writable output directory\n",
-                            input.string(), e.what());
+      errors << fmt::format("{}: error: {}, expected a writable output directory\n", input.string(),
+                            e.what());
       status = 1;
     }
   }

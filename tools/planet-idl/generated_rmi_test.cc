@@ -202,14 +202,17 @@ TEST_F(GeneratedRmi, EveryOperationSynchronously) {
   everything.sounds = {SoundEvent{1, 2, "s"}};
   EXPECT_EQ(tv.echo(everything), everything);
   const nav::Route route{{nav::Waypoint{Pose{1, 2, 3}, nav::Mode::docking, "dock"}},
-                         geo::Point{4, 5}, geo::Unit::millimeter};
+                         geo::Point{4, 5},
+                         geo::Unit::millimeter};
   EXPECT_EQ(tv.echo_route(route), route);
-  EXPECT_EQ(tv.reverse({Pose{1, 0, 0}, Pose{2, 0, 0}}), (std::vector<Pose>{Pose{2, 0, 0}, Pose{1, 0, 0}}));
+  EXPECT_EQ(tv.reverse({Pose{1, 0, 0}, Pose{2, 0, 0}}),
+            (std::vector<Pose>{Pose{2, 0, 0}, Pose{1, 0, 0}}));
   const Detection d = tv.detect(Color::green, nav::Mode::driving, geo::Point{3, 4});
   EXPECT_EQ(d.color, Color::green);
   EXPECT_EQ(d.where.mode, nav::Mode::driving);
   EXPECT_EQ(d.outline, (std::vector<geo::Point>{geo::Point{3, 4}}));
-  EXPECT_EQ(tv.transpose({{1, 2}, {3, 4}}), (std::vector<std::vector<std::int32_t>>{{1, 3}, {2, 4}}));
+  EXPECT_EQ(tv.transpose({{1, 2}, {3, 4}}),
+            (std::vector<std::vector<std::int32_t>>{{1, 3}, {2, 4}}));
 }
 
 TEST_F(GeneratedRmi, RaisedExceptionsArriveAsTheirGeneratedClasses) {
@@ -252,7 +255,8 @@ TEST_F(GeneratedRmi, AsynchronousCallsWithCallbacksAndFutures) {
   Everything everything;
   everything.big = -1;
   EXPECT_EQ(tv().echo_async(everything, asio::use_future).get(), everything);
-  EXPECT_EQ(tv().reverse_async({Pose{1, 2, 3}}, asio::use_future).get(), (std::vector<Pose>{Pose{1, 2, 3}}));
+  EXPECT_EQ(tv().reverse_async({Pose{1, 2, 3}}, asio::use_future).get(),
+            (std::vector<Pose>{Pose{1, 2, 3}}));
 }
 
 TEST_F(GeneratedRmi, OnewayCallArrives) {
@@ -300,7 +304,8 @@ TEST_F(GeneratedRmi, StreamResultIsReadToTheEnd) {
   EXPECT_EQ(all.back(), std::byte{4});
   const auto async_in = tv().record_async(2, asio::use_future).get();
   std::size_t total = 0;
-  for (auto chunk = async_in->read(); !chunk.empty(); chunk = async_in->read()) total += chunk.size();
+  for (auto chunk = async_in->read(); !chunk.empty(); chunk = async_in->read())
+    total += chunk.size();
   EXPECT_EQ(total, 2000u);
 }
 

@@ -103,7 +103,8 @@ TEST(GeneratedValued, EncodesItsFieldsInDeclarationOrder) {
   EXPECT_EQ(encoded(Pose{1, 2, 3}), expected);
   EXPECT_EQ(descriptor<Pose>(), "valued fixture::Pose");
   EXPECT_EQ(descriptor<nav::Route>(), "valued fixture::nav::Route");
-  EXPECT_EQ(descriptor<std::vector<std::vector<Pose>>>(), "sequence<sequence<valued fixture::Pose>>");
+  EXPECT_EQ(descriptor<std::vector<std::vector<Pose>>>(),
+            "sequence<sequence<valued fixture::Pose>>");
 }
 
 TEST(GeneratedValued, EveryFieldTypeRoundTrips) {
@@ -111,7 +112,8 @@ TEST(GeneratedValued, EveryFieldTypeRoundTrips) {
   EXPECT_EQ(round_trip(e), e);
   EXPECT_EQ(round_trip(Everything{}), Everything{});
   const nav::Route route{{nav::Waypoint{Pose{1, 2, 3}, nav::Mode::docking, "dock"}},
-                         geo::Point{4, 5}, geo::Unit::millimeter};
+                         geo::Point{4, 5},
+                         geo::Unit::millimeter};
   EXPECT_EQ(round_trip(route), route);
   EXPECT_EQ(round_trip(std::vector<nav::Route>{route, nav::Route{}}),
             (std::vector<nav::Route>{route, nav::Route{}}));
@@ -140,7 +142,8 @@ TEST(GeneratedEvent, IsAPlanetEventWithOnePropertyPerField) {
 }
 
 TEST(GeneratedEvent, GenericReceiversReadTheSameBytes) {
-  const Detection d{{geo::Point{1, 2}, geo::Point{3, 4}}, Color::blue,
+  const Detection d{{geo::Point{1, 2}, geo::Point{3, 4}},
+                    Color::blue,
                     nav::Waypoint{Pose{5, 6, 7}, nav::Mode::driving, "hall"}};
   std::vector<std::byte> bytes;
   p::Writer w(bytes);
@@ -209,7 +212,8 @@ TEST(GeneratedInterface, DescribesItsOperations) {
   static_assert(home::TV::type_id == "fixture::home::TV");
   static_assert(std::is_same_v<decltype(home::TV::subscribe),
                                const p::Operation<void(p::Ref<home::Listener>, std::string)>>);
-  static_assert(std::is_same_v<decltype(home::TV::record), const p::Operation<p::StreamRef(std::int32_t)>>);
+  static_assert(
+      std::is_same_v<decltype(home::TV::record), const p::Operation<p::StreamRef(std::int32_t)>>);
   static_assert(std::is_same_v<decltype(home::TV::log), const p::OneWay<std::string>>);
   static_assert(std::is_same_v<decltype(home::TV::self), const p::Operation<p::Ref<home::TV>()>>);
   static_assert(std::is_base_of_v<p::Proxy, home::TVPrx>);

@@ -11,13 +11,13 @@ namespace icars::planet::idl {
 namespace {
 
 constexpr std::array kKeywords = {
-    std::string_view("binary"),  std::string_view("bool"),      std::string_view("byte"),
-    std::string_view("double"),  std::string_view("enum"),      std::string_view("event"),
-    std::string_view("exception"), std::string_view("float"),   std::string_view("include"),
-    std::string_view("int"),     std::string_view("interface"), std::string_view("long"),
-    std::string_view("module"),  std::string_view("oneway"),    std::string_view("raises"),
-    std::string_view("sequence"), std::string_view("short"),    std::string_view("stream"),
-    std::string_view("string"),  std::string_view("valued"),    std::string_view("void"),
+    std::string_view("binary"),    std::string_view("bool"),      std::string_view("byte"),
+    std::string_view("double"),    std::string_view("enum"),      std::string_view("event"),
+    std::string_view("exception"), std::string_view("float"),     std::string_view("include"),
+    std::string_view("int"),       std::string_view("interface"), std::string_view("long"),
+    std::string_view("module"),    std::string_view("oneway"),    std::string_view("raises"),
+    std::string_view("sequence"),  std::string_view("short"),     std::string_view("stream"),
+    std::string_view("string"),    std::string_view("valued"),    std::string_view("void"),
 };
 
 bool is_letter(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_'; }
@@ -83,7 +83,8 @@ class Lexer {
     advance();
     advance();
     while (!(peek() == '*' && peek(1) == '/')) {
-      if (at_end()) throw CompileError(start, "unterminated comment", "'*/' before the end of the file");
+      if (at_end())
+        throw CompileError(start, "unterminated comment", "'*/' before the end of the file");
       advance();
     }
     advance();
@@ -114,19 +115,31 @@ class Lexer {
 
   TokenKind punctuation(char c, const SourceLocation& where) const {
     switch (c) {
-      case '{': return TokenKind::left_brace;
-      case '}': return TokenKind::right_brace;
-      case '(': return TokenKind::left_paren;
-      case ')': return TokenKind::right_paren;
-      case '<': return TokenKind::left_angle;
-      case '>': return TokenKind::right_angle;
-      case ';': return TokenKind::semicolon;
-      case ',': return TokenKind::comma;
-      case ':': return TokenKind::colon;
-      case '=': return TokenKind::equals;
-      case '-': return TokenKind::minus;
+      case '{':
+        return TokenKind::left_brace;
+      case '}':
+        return TokenKind::right_brace;
+      case '(':
+        return TokenKind::left_paren;
+      case ')':
+        return TokenKind::right_paren;
+      case '<':
+        return TokenKind::left_angle;
+      case '>':
+        return TokenKind::right_angle;
+      case ';':
+        return TokenKind::semicolon;
+      case ',':
+        return TokenKind::comma;
+      case ':':
+        return TokenKind::colon;
+      case '=':
+        return TokenKind::equals;
+      case '-':
+        return TokenKind::minus;
       default:
-        throw CompileError(where, fmt::format("unexpected character {}", quote(std::string_view(&c, 1))),
+        throw CompileError(where,
+                           fmt::format("unexpected character {}", quote(std::string_view(&c, 1))),
                            std::string(kTokenStart));
     }
   }
@@ -144,7 +157,8 @@ class Lexer {
     if (hex) {
       advance();
       advance();
-      if (!is_hex_digit(peek())) throw CompileError(here(), "'0x' without digits", "a hexadecimal digit");
+      if (!is_hex_digit(peek()))
+        throw CompileError(here(), "'0x' without digits", "a hexadecimal digit");
     }
     std::uint64_t value = 0;
     while (hex ? is_hex_digit(peek()) : is_digit(peek())) {
@@ -156,8 +170,10 @@ class Lexer {
       advance();
     }
     if (is_letter(peek())) {
-      throw CompileError(here(), fmt::format("unexpected {} in a number", quote(std::string_view(&text_[pos_], 1))),
-                         "a digit or a separator");
+      throw CompileError(
+          here(),
+          fmt::format("unexpected {} in a number", quote(std::string_view(&text_[pos_], 1))),
+          "a digit or a separator");
     }
     Token t = make(TokenKind::integer, start, where);
     t.value = value;
@@ -193,31 +209,51 @@ bool is_idl_keyword(std::string_view word) {
 
 std::string describe(const Token& token) {
   switch (token.kind) {
-    case TokenKind::end_of_file: return "end of file";
-    case TokenKind::string: return fmt::format("string \"{}\"", token.text);
-    default: return quote(token.text);
+    case TokenKind::end_of_file:
+      return "end of file";
+    case TokenKind::string:
+      return fmt::format("string \"{}\"", token.text);
+    default:
+      return quote(token.text);
   }
 }
 
 std::string describe(TokenKind kind) {
   switch (kind) {
-    case TokenKind::end_of_file: return "end of file";
-    case TokenKind::identifier: return "an identifier";
-    case TokenKind::keyword: return "a keyword";
-    case TokenKind::integer: return "an integer";
-    case TokenKind::string: return "a string";
-    case TokenKind::left_brace: return "'{'";
-    case TokenKind::right_brace: return "'}'";
-    case TokenKind::left_paren: return "'('";
-    case TokenKind::right_paren: return "')'";
-    case TokenKind::left_angle: return "'<'";
-    case TokenKind::right_angle: return "'>'";
-    case TokenKind::semicolon: return "';'";
-    case TokenKind::comma: return "','";
-    case TokenKind::colon: return "':'";
-    case TokenKind::scope: return "'::'";
-    case TokenKind::equals: return "'='";
-    case TokenKind::minus: return "'-'";
+    case TokenKind::end_of_file:
+      return "end of file";
+    case TokenKind::identifier:
+      return "an identifier";
+    case TokenKind::keyword:
+      return "a keyword";
+    case TokenKind::integer:
+      return "an integer";
+    case TokenKind::string:
+      return "a string";
+    case TokenKind::left_brace:
+      return "'{'";
+    case TokenKind::right_brace:
+      return "'}'";
+    case TokenKind::left_paren:
+      return "'('";
+    case TokenKind::right_paren:
+      return "')'";
+    case TokenKind::left_angle:
+      return "'<'";
+    case TokenKind::right_angle:
+      return "'>'";
+    case TokenKind::semicolon:
+      return "';'";
+    case TokenKind::comma:
+      return "','";
+    case TokenKind::colon:
+      return "':'";
+    case TokenKind::scope:
+      return "'::'";
+    case TokenKind::equals:
+      return "'='";
+    case TokenKind::minus:
+      return "'-'";
   }
   return "a token";
 }

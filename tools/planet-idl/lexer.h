@@ -42,7 +42,9 @@ struct Token {
   std::uint64_t value = 0;  // for integers
 
   bool is(TokenKind k) const { return kind == k; }
-  bool is_keyword(std::string_view word) const { return kind == TokenKind::keyword && text == word; }
+  bool is_keyword(std::string_view word) const {
+    return kind == TokenKind::keyword && text == word;
+  }
 };
 
 // The IDL's reserved words; none of them can name anything.

@@ -30,8 +30,8 @@ TEST(Lexer, SplitsPunctuationNamesNumbersAndStrings) {
   EXPECT_EQ(kinds("module a::b { } ( ) < > ; , : = - 42 0x1F \"x.idl\""),
             (std::vector<K>{K::keyword, K::identifier, K::scope, K::identifier, K::left_brace,
                             K::right_brace, K::left_paren, K::right_paren, K::left_angle,
-                            K::right_angle, K::semicolon, K::comma, K::colon, K::equals,
-                            K::minus, K::integer, K::integer, K::string, K::end_of_file}));
+                            K::right_angle, K::semicolon, K::comma, K::colon, K::equals, K::minus,
+                            K::integer, K::integer, K::string, K::end_of_file}));
 }
 
 TEST(Lexer, NestedAnglesAreSeparateTokens) {
@@ -76,14 +76,18 @@ TEST(Lexer, ReportsErrorsAtTheirPosition) {
   EXPECT_EQ(error_of("a\n  $"),
             "t.idl:2:3: error: unexpected character '$', expected an identifier, a number, a "
             "string, a comment or one of { } ( ) < > ; , : = -");
-  EXPECT_EQ(error_of("\xff\xfe"), "t.idl:1:1: error: unexpected character '\\xff', expected an "
-                                  "identifier, a number, a string, a comment or one of { } ( ) < > "
-                                  "; , : = -");
-  EXPECT_EQ(error_of("x = 18446744073709551616;"),
-            "t.idl:1:5: error: integer literal is too large, expected a value that fits in 64 bits");
-  EXPECT_EQ(error_of("12abc"), "t.idl:1:3: error: unexpected 'a' in a number, expected a digit or a separator");
+  EXPECT_EQ(error_of("\xff\xfe"),
+            "t.idl:1:1: error: unexpected character '\\xff', expected an "
+            "identifier, a number, a string, a comment or one of { } ( ) < > "
+            "; , : = -");
+  EXPECT_EQ(
+      error_of("x = 18446744073709551616;"),
+      "t.idl:1:5: error: integer literal is too large, expected a value that fits in 64 bits");
+  EXPECT_EQ(error_of("12abc"),
+            "t.idl:1:3: error: unexpected 'a' in a number, expected a digit or a separator");
   EXPECT_EQ(error_of("0x;"), "t.idl:1:3: error: '0x' without digits, expected a hexadecimal digit");
-  EXPECT_EQ(error_of(std::string_view("a\0b", 3)).substr(0, 38), "t.idl:1:2: error: unexpected character");
+  EXPECT_EQ(error_of(std::string_view("a\0b", 3)).substr(0, 38),
+            "t.idl:1:2: error: unexpected character");
 }
 
 TEST(Lexer, DescribesTokensForMessages) {

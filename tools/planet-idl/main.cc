@@ -5,7 +5,6 @@
 // Writes DIR/<stem>.planet.h and DIR/<stem>.planet.cc for every input. Errors go to stderr as
 // `file:line:column: error: ...`; the exit code is 1 when any input failed, 2 for bad usage.
 #include <CLI/CLI.hpp>
-
 #include <exception>
 #include <iostream>
 

@@ -19,30 +19,45 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr std::array<std::string_view, 92> kCppKeywords = {
-    "alignas",   "alignof",     "and",          "and_eq",      "asm",         "auto",
-    "bitand",    "bitor",       "bool",         "break",       "case",        "catch",
-    "char",      "char8_t",     "char16_t",     "char32_t",    "class",       "compl",
-    "concept",   "const",       "consteval",    "constexpr",   "constinit",   "const_cast",
-    "continue",  "co_await",    "co_return",    "co_yield",    "decltype",    "default",
-    "delete",    "do",          "double",       "dynamic_cast", "else",       "enum",
-    "explicit",  "export",      "extern",       "false",       "float",       "for",
-    "friend",    "goto",        "if",           "inline",      "int",         "long",
-    "mutable",   "namespace",   "new",          "noexcept",    "not",         "not_eq",
-    "nullptr",   "operator",    "or",           "or_eq",       "private",     "protected",
-    "public",    "register",    "reinterpret_cast", "requires", "return",     "short",
-    "signed",    "sizeof",      "static",       "static_assert", "static_cast", "struct",
-    "switch",    "template",    "this",         "thread_local", "throw",      "true",
-    "try",       "typedef",     "typeid",       "typename",    "union",       "unsigned",
-    "using",     "virtual",     "void",         "volatile",    "wchar_t",     "while",
-    "xor",       "xor_eq",
+    "alignas",       "alignof",     "and",
+    "and_eq",        "asm",         "auto",
+    "bitand",        "bitor",       "bool",
+    "break",         "case",        "catch",
+    "char",          "char8_t",     "char16_t",
+    "char32_t",      "class",       "compl",
+    "concept",       "const",       "consteval",
+    "constexpr",     "constinit",   "const_cast",
+    "continue",      "co_await",    "co_return",
+    "co_yield",      "decltype",    "default",
+    "delete",        "do",          "double",
+    "dynamic_cast",  "else",        "enum",
+    "explicit",      "export",      "extern",
+    "false",         "float",       "for",
+    "friend",        "goto",        "if",
+    "inline",        "int",         "long",
+    "mutable",       "namespace",   "new",
+    "noexcept",      "not",         "not_eq",
+    "nullptr",       "operator",    "or",
+    "or_eq",         "private",     "protected",
+    "public",        "register",    "reinterpret_cast",
+    "requires",      "return",      "short",
+    "signed",        "sizeof",      "static",
+    "static_assert", "static_cast", "struct",
+    "switch",        "template",    "this",
+    "thread_local",  "throw",       "true",
+    "try",           "typedef",     "typeid",
+    "typename",      "union",       "unsigned",
+    "using",         "virtual",     "void",
+    "volatile",      "wchar_t",     "while",
+    "xor",           "xor_eq",
 };
 // Names the generated code relies on at namespace scope.
 constexpr std::array<std::string_view, 3> kReservedNames = {"std", "icars", "asio"};
 // Members of the generated proxy and servant (and their bases) an operation must not hide.
 constexpr std::array<std::string_view, 18> kReservedOperationNames = {
-    "call",       "async_call", "notify",      "ref",       "communicator", "link",
-    "path",       "object",     "timeout",     "with_timeout", "set_timeout", "bound",
-    "implement",  "dispatch",   "type_id",     "has_method", "bind_result",  "async_call_bound"};
+    "call",      "async_call", "notify",  "ref",          "communicator", "link",
+    "path",      "object",     "timeout", "with_timeout", "set_timeout",  "bound",
+    "implement", "dispatch",   "type_id", "has_method",   "bind_result",  "async_call_bound"};
 // Parameters the generated methods add after the operation's own.
 constexpr std::array<std::string_view, 2> kReservedParameterNames = {"current", "token"};
 // Members of RemoteException and the generated exception constructor.
@@ -96,10 +111,14 @@ enum class Use : std::uint8_t { result, parameter, field, element };
 
 std::string_view use_name(Use use) {
   switch (use) {
-    case Use::result: return "a result type";
-    case Use::parameter: return "a parameter type";
-    case Use::field: return "the type of a field";
-    case Use::element: return "a sequence element";
+    case Use::result:
+      return "a result type";
+    case Use::parameter:
+      return "a parameter type";
+    case Use::field:
+      return "the type of a field";
+    case Use::element:
+      return "a sequence element";
   }
   return "used here";
 }
@@ -145,13 +164,14 @@ class FileParser {
     return advance();
   }
   [[noreturn]] static void unexpected(const Token& t, std::string_view expected) {
-    throw CompileError(t.location, fmt::format("unexpected {}", describe(t)), std::string(expected));
+    throw CompileError(t.location, fmt::format("unexpected {}", describe(t)),
+                       std::string(expected));
   }
   void fail_if_unclosed(std::string_view what, const Definition& d) const {
     if (!peek().is(TokenKind::end_of_file)) return;
-    throw CompileError(peek().location, "unexpected end of file",
-                       fmt::format("'}}' to close {} '{}' opened at {}", what, d.name,
-                                   d.location.to_string()));
+    throw CompileError(
+        peek().location, "unexpected end of file",
+        fmt::format("'}}' to close {} '{}' opened at {}", what, d.name, d.location.to_string()));
   }
 
   // --- Names ---
@@ -172,8 +192,7 @@ class FileParser {
                          std::string(role) + " other than std, icars and asio");
     }
     if (has_reserved_underscores(t.text)) {
-      throw CompileError(t.location,
-                         quote(t.text) + " starts or ends with '_' or contains '__'",
+      throw CompileError(t.location, quote(t.text) + " starts or ends with '_' or contains '__'",
                          std::string(role) + " without them (C++ and the generated code use them)");
     }
   }
@@ -280,7 +299,8 @@ class Loader {
 
   std::pair<fs::path, std::string> find(const Token& name, const SourceFile& from) const {
     const fs::path written{std::string(name.text)};
-    if (written.empty()) throw CompileError(name.location, "empty include file name", "a file name");
+    if (written.empty())
+      throw CompileError(name.location, "empty include file name", "a file name");
     std::vector<fs::path> candidates;
     if (written.is_absolute()) {
       candidates.push_back(written);
@@ -296,15 +316,15 @@ class Loader {
       if (!searched.empty()) searched += ", ";
       searched += candidate.string();
     }
-    throw CompileError(name.location,
-                       fmt::format("cannot find include file \"{}\" (searched {})", name.text,
-                                   searched),
-                       "a file next to the including file or in an import directory (-I)");
+    throw CompileError(
+        name.location,
+        fmt::format("cannot find include file \"{}\" (searched {})", name.text, searched),
+        "a file next to the including file or in an import directory (-I)");
   }
 
   void check_cycle(const Token& name, const std::string& id, const fs::path& path) const {
-    const auto open = std::find_if(stack_.begin(), stack_.end(),
-                                   [&](const Open& o) { return o.id == id; });
+    const auto open =
+        std::find_if(stack_.begin(), stack_.end(), [&](const Open& o) { return o.id == id; });
     if (open == stack_.end()) return;
     std::string chain;
     for (auto it = open; it != stack_.end(); ++it) chain += it->path + " -> ";
@@ -316,7 +336,7 @@ class Loader {
   SourceReader& reader_;
   SymbolTable symbols_;
   Program program_;
-  std::vector<Open> stack_;                          // files being parsed, outermost first
+  std::vector<Open> stack_;                        // files being parsed, outermost first
   std::map<std::string, const SourceFile*> done_;  // by identity
 };
 
@@ -363,11 +383,12 @@ void FileParser::check_generated_names(const Token& name_token, DefinitionKind k
   for (const std::string_view suffix : {std::string_view("Prx"), std::string_view("Servant")}) {
     if (kind == DefinitionKind::interface) {
       if (const Definition* d = symbols_.find(qualified + std::string(suffix))) {
-        throw CompileError(name_token.location,
-                           fmt::format("interface '{}' generates the class '{}{}', already defined "
-                                       "at {}", name_token.text, name_token.text, suffix,
-                                       d->location.to_string()),
-                           "an interface name whose Prx and Servant classes are free");
+        throw CompileError(
+            name_token.location,
+            fmt::format("interface '{}' generates the class '{}{}', already defined "
+                        "at {}",
+                        name_token.text, name_token.text, suffix, d->location.to_string()),
+            "an interface name whose Prx and Servant classes are free");
       }
     }
     if (!qualified.ends_with(suffix)) continue;
@@ -431,7 +452,8 @@ Enumerator FileParser::parse_enumerator(const Enum& e, std::int64_t implicit_val
   if (value > std::numeric_limits<std::int32_t>::max()) {
     throw CompileError(name_token.location,
                        fmt::format("enumerator '{}' would have the value {}, which does not fit "
-                                   "in 32 bits", name, value),
+                                   "in 32 bits",
+                                   name, value),
                        "values from -2147483648 to 2147483647");
   }
   for (const Enumerator& other : e.enumerators) {
@@ -442,10 +464,10 @@ Enumerator FileParser::parse_enumerator(const Enum& e, std::int64_t implicit_val
                          "a name not yet used in enum '" + e.name + "'");
     }
     if (other.value == value) {
-      throw CompileError(name_token.location,
-                         fmt::format("enumerator '{}' has the value {} of '{}'", name, value,
-                                     other.name),
-                         "distinct values in enum '" + e.name + "'");
+      throw CompileError(
+          name_token.location,
+          fmt::format("enumerator '{}' has the value {} of '{}'", name, value, other.name),
+          "distinct values in enum '" + e.name + "'");
     }
   }
   return Enumerator{name, static_cast<std::int32_t>(value), name_token.location};
@@ -502,10 +524,10 @@ Field FileParser::parse_field(const Struct& s) {
   }
   for (const Field& other : s.fields) {
     if (other.name == name) {
-      throw CompileError(name_token.location,
-                         fmt::format("field '{}' is already declared at {}", name,
-                                     other.location.to_string()),
-                         fmt::format("a name not yet used in {} '{}'", idl_name(s.kind), s.name));
+      throw CompileError(
+          name_token.location,
+          fmt::format("field '{}' is already declared at {}", name, other.location.to_string()),
+          fmt::format("a name not yet used in {} '{}'", idl_name(s.kind), s.name));
     }
   }
   expect(TokenKind::semicolon, "';' after the field");
@@ -536,12 +558,13 @@ void FileParser::parse_bases(Interface& i) {
     const ScopedName name = parse_scoped_name("the name of a base interface");
     const Definition* d = lookup(name);
     if (d == nullptr || d->kind != DefinitionKind::interface) {
-      throw CompileError(name.location,
-                         d == nullptr ? fmt::format("unknown interface '{}'", name.text)
-                                      : fmt::format("'{}' is {} {}, not an interface", name.text,
-                                                    d->kind == DefinitionKind::enumeration ? "an" : "a",
-                                                    idl_name(d->kind)),
-                         "the name of an interface defined before this point");
+      throw CompileError(
+          name.location,
+          d == nullptr
+              ? fmt::format("unknown interface '{}'", name.text)
+              : fmt::format("'{}' is {} {}, not an interface", name.text,
+                            d->kind == DefinitionKind::enumeration ? "an" : "a", idl_name(d->kind)),
+          "the name of an interface defined before this point");
     }
     const auto* base = static_cast<const Interface*>(d);
     if (std::find(i.bases.begin(), i.bases.end(), base) != i.bases.end()) {
@@ -556,8 +579,9 @@ void FileParser::parse_bases(Interface& i) {
       if (a->operation->name != b->operation->name) continue;
       throw CompileError(i.location,
                          fmt::format("interface '{}' inherits two operations named '{}' (from "
-                                     "'{}' and '{}')", i.name, a->operation->name,
-                                     a->owner->qualified_name, b->owner->qualified_name),
+                                     "'{}' and '{}')",
+                                     i.name, a->operation->name, a->owner->qualified_name,
+                                     b->owner->qualified_name),
                          "base interfaces whose operation names differ");
     }
   }
@@ -573,10 +597,10 @@ void FileParser::parse_operation(Interface& i) {
   op.location = name_token.location;
   check_operation_name(i, name_token);
   if (op.oneway && !op.result.is_void()) {
-    throw CompileError(op.result.location,
-                       fmt::format("oneway operation '{}' returns '{}'", op.name,
-                                   op.result.to_idl()),
-                       "'void' (a oneway call has no reply to carry a result)");
+    throw CompileError(
+        op.result.location,
+        fmt::format("oneway operation '{}' returns '{}'", op.name, op.result.to_idl()),
+        "'void' (a oneway call has no reply to carry a result)");
   }
   expect(TokenKind::left_paren, "'(' after the operation name");
   if (!accept(TokenKind::right_paren)) {
@@ -594,13 +618,13 @@ void FileParser::check_operation_name(const Interface& i, const Token& name_toke
   const std::string name(name_token.text);
   if (contains(kReservedOperationNames, name) || name == i.name || name == i.name + "Prx" ||
       name == i.name + "Servant") {
-    throw CompileError(name_token.location,
-                       fmt::format("operation name '{}' is used by the generated C++ classes",
-                                   name),
-                       "another name (not call, async_call, notify, ref, communicator, link, "
-                       "path, object, timeout, with_timeout, set_timeout, bound, implement, "
-                       "dispatch, type_id, has_method, bind_result, async_call_bound or the "
-                       "interface's own names)");
+    throw CompileError(
+        name_token.location,
+        fmt::format("operation name '{}' is used by the generated C++ classes", name),
+        "another name (not call, async_call, notify, ref, communicator, link, "
+        "path, object, timeout, with_timeout, set_timeout, bound, implement, "
+        "dispatch, type_id, has_method, bind_result, async_call_bound or the "
+        "interface's own names)");
   }
   for (const Interface::Member& m : i.all_operations()) {
     const std::string& other = m.operation->name;
@@ -613,7 +637,8 @@ void FileParser::check_operation_name(const Interface& i, const Token& name_toke
     if (other + "_async" == name || name + "_async" == other) {
       throw CompileError(name_token.location,
                          fmt::format("operation '{}' clashes with the asynchronous method "
-                                     "generated for '{}'", name, std::min(name, other)),
+                                     "generated for '{}'",
+                                     name, std::min(name, other)),
                          "a name that does not differ from another operation's by '_async'");
     }
   }
@@ -642,10 +667,10 @@ Parameter FileParser::parse_parameter(const Operation& op) {
   }
   for (const Parameter& other : op.parameters) {
     if (other.name == name) {
-      throw CompileError(name_token.location,
-                         fmt::format("parameter '{}' is already declared at {}", name,
-                                     other.location.to_string()),
-                         fmt::format("a name not yet used in operation '{}'", op.name));
+      throw CompileError(
+          name_token.location,
+          fmt::format("parameter '{}' is already declared at {}", name, other.location.to_string()),
+          fmt::format("a name not yet used in operation '{}'", op.name));
     }
   }
   return Parameter{std::move(name), std::move(type), name_token.location};
@@ -663,13 +688,13 @@ void FileParser::parse_raises(Operation& op) {
     const ScopedName name = parse_scoped_name("the name of an exception");
     const Definition* d = lookup(name);
     if (d == nullptr || d->kind != DefinitionKind::exception) {
-      throw CompileError(name.location,
-                         d == nullptr ? fmt::format("unknown exception '{}'", name.text)
-                                      : fmt::format("'{}' is {} {}, not an exception", name.text,
-                                                    d->kind == DefinitionKind::enumeration ? "an"
-                                                                                           : "a",
-                                                    idl_name(d->kind)),
-                         "the name of an exception defined before this point");
+      throw CompileError(
+          name.location,
+          d == nullptr
+              ? fmt::format("unknown exception '{}'", name.text)
+              : fmt::format("'{}' is {} {}, not an exception", name.text,
+                            d->kind == DefinitionKind::enumeration ? "an" : "a", idl_name(d->kind)),
+          "the name of an exception defined before this point");
     }
     const auto* exception = static_cast<const Struct*>(d);
     if (std::find(op.raises.begin(), op.raises.end(), exception) != op.raises.end()) {
@@ -686,10 +711,17 @@ void FileParser::parse_raises(Operation& op) {
 std::optional<Builtin> builtin_named(const Token& t) {
   if (!t.is(TokenKind::keyword)) return std::nullopt;
   static constexpr std::array<std::pair<std::string_view, Builtin>, 11> kBuiltins = {{
-      {"void", Builtin::void_type},  {"bool", Builtin::boolean},  {"byte", Builtin::byte},
-      {"short", Builtin::short_int}, {"int", Builtin::int32},     {"long", Builtin::int64},
-      {"float", Builtin::float32},   {"double", Builtin::float64}, {"string", Builtin::string},
-      {"binary", Builtin::binary},   {"stream", Builtin::stream},
+      {"void", Builtin::void_type},
+      {"bool", Builtin::boolean},
+      {"byte", Builtin::byte},
+      {"short", Builtin::short_int},
+      {"int", Builtin::int32},
+      {"long", Builtin::int64},
+      {"float", Builtin::float32},
+      {"double", Builtin::float64},
+      {"string", Builtin::string},
+      {"binary", Builtin::binary},
+      {"stream", Builtin::stream},
   }};
   for (const auto& [word, builtin] : kBuiltins) {
     if (t.text == word) return builtin;
@@ -739,10 +771,10 @@ Type FileParser::parse_named_type() {
 
 void FileParser::check_use(const Type& type, Use use) {
   if (type.is_named(DefinitionKind::exception)) {
-    throw CompileError(type.location,
-                       fmt::format("'{}' is an exception, which only raises (...) may name",
-                                   type.to_idl()),
-                       "a data type or an interface");
+    throw CompileError(
+        type.location,
+        fmt::format("'{}' is an exception, which only raises (...) may name", type.to_idl()),
+        "a data type or an interface");
   }
   if (type.is_void() && use != Use::result) {
     throw CompileError(type.location, fmt::format("'void' cannot be {}", use_name(use)),
@@ -752,14 +784,17 @@ void FileParser::check_use(const Type& type, Use use) {
   if ((type.is_stream() || type.is_interface()) && (use == Use::field || use == Use::element)) {
     throw CompileError(type.location,
                        fmt::format("'{}' cannot be {} (streams and interfaces are only passed "
-                                   "as parameters and results)", type.to_idl(), use_name(use)),
+                                   "as parameters and results)",
+                                   type.to_idl(), use_name(use)),
                        std::string(kDataTypes));
   }
 }
 
 }  // namespace
 
-std::string SourceReader::identity(const fs::path& path) { return path.lexically_normal().string(); }
+std::string SourceReader::identity(const fs::path& path) {
+  return path.lexically_normal().string();
+}
 
 std::optional<std::string> FileSystemReader::read(const fs::path& path) {
   std::error_code ec;

@@ -119,7 +119,8 @@ TEST(Parser, LooksNamesUpThroughEnclosingModulesInnermostFirst) {
 }
 
 TEST(Parser, ReopenedModulesShareTheirNames) {
-  const Program program = parse("module a { valued P { int x; }; }\nmodule a { valued Q { P p; }; }");
+  const Program program =
+      parse("module a { valued P { int x; }; }\nmodule a { valued Q { P p; }; }");
   EXPECT_EQ(program.main->root.definitions.size(), 2u);
   EXPECT_EQ(error_of("module a { valued P { int x; }; }\nmodule a { valued P { int y; }; }"),
             "main.idl:2:19: error: 'a::P' is already defined as valued at main.idl:1:19, "
@@ -129,12 +130,12 @@ TEST(Parser, ReopenedModulesShareTheirNames) {
 TEST(Parser, IncludesAreParsedOnceAndFoundInImportDirectories) {
   ParseOptions options;
   options.import_dirs = {"lib"};
-  const Program program = parse(
-      {{"main.idl", "include \"left.idl\";\ninclude \"right.idl\";\nvalued M { geo::P p; };"},
-       {"left.idl", "include \"geo.idl\";"},
-       {"right.idl", "include \"geo.idl\";"},
-       {"lib/geo.idl", "module geo { valued P { int x; }; }"}},
-      options);
+  const Program program =
+      parse({{"main.idl", "include \"left.idl\";\ninclude \"right.idl\";\nvalued M { geo::P p; };"},
+             {"left.idl", "include \"geo.idl\";"},
+             {"right.idl", "include \"geo.idl\";"},
+             {"lib/geo.idl", "module geo { valued P { int x; }; }"}},
+            options);
   ASSERT_EQ(program.files.size(), 4u);
   EXPECT_EQ(program.files[0]->path, "lib/geo.idl");
   EXPECT_EQ(program.main->includes.size(), 2u);
@@ -152,10 +153,10 @@ TEST(Parser, ReportsIncludeProblems) {
   EXPECT_EQ(error_of("include \"nope.idl\";"),
             "main.idl:1:9: error: cannot find include file \"nope.idl\" (searched nope.idl), "
             "expected a file next to the including file or in an import directory (-I)");
-  EXPECT_EQ(error_of({{"main.idl", "include \"a.idl\";"},
-                      {"a.idl", "// a\ninclude \"main.idl\";"}}),
-            "a.idl:2:9: error: include cycle main.idl -> a.idl -> main.idl, expected files that "
-            "do not include each other");
+  EXPECT_EQ(
+      error_of({{"main.idl", "include \"a.idl\";"}, {"a.idl", "// a\ninclude \"main.idl\";"}}),
+      "a.idl:2:9: error: include cycle main.idl -> a.idl -> main.idl, expected files that "
+      "do not include each other");
   EXPECT_EQ(error_of("valued A { int x; };\ninclude \"a.idl\";"),
             "main.idl:2:1: error: include after a definition, expected includes only at the top "
             "of the file, before any definition");
@@ -168,7 +169,8 @@ TEST(Parser, ReportsIncludeProblems) {
     parse_program("missing.idl", {}, empty);
     FAIL();
   } catch (const CompileError& e) {
-    EXPECT_STREQ(e.what(), "missing.idl: error: cannot read 'missing.idl', expected a readable IDL file");
+    EXPECT_STREQ(e.what(),
+                 "missing.idl: error: cannot read 'missing.idl', expected a readable IDL file");
   }
 }
 
@@ -189,12 +191,15 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"valued P { Unknown x; };",
                 "main.idl:1:12: error: unknown type 'Unknown', expected a builtin type or the "
                 "name of an enum, valued, event or interface defined before this point"},
-        BadCase{"valued P { int x }", "main.idl:1:18: error: unexpected '}', expected ';' after the field"},
-        BadCase{"valued P { int x; }", "main.idl:1:20: error: unexpected end of file, expected ';' after the valued"},
+        BadCase{"valued P { int x }",
+                "main.idl:1:18: error: unexpected '}', expected ';' after the field"},
+        BadCase{"valued P { int x; }",
+                "main.idl:1:20: error: unexpected end of file, expected ';' after the valued"},
         BadCase{"valued P { sequence int> x; };",
                 "main.idl:1:21: error: unexpected 'int', expected '<' after 'sequence'"},
-        BadCase{"valued P { sequence<int x; };",
-                "main.idl:1:25: error: unexpected 'x', expected '>' after the sequence's element type"},
+        BadCase{
+            "valued P { sequence<int x; };",
+            "main.idl:1:25: error: unexpected 'x', expected '>' after the sequence's element type"},
         BadCase{"valued P { sequence<void> x; };",
                 "main.idl:1:21: error: 'void' cannot be a sequence element, expected a data type "
                 "(bool, byte, short, int, long, float, double, string, binary, a sequence, an "
@@ -238,12 +243,14 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"valued P { };",
                 "main.idl:1:12: error: valued 'P' has no fields, expected at least one field (an "
                 "empty valued cannot be told apart on the wire)"},
-        BadCase{"interface { };", "main.idl:1:11: error: unexpected '{', expected an interface name"},
+        BadCase{"interface { };",
+                "main.idl:1:11: error: unexpected '{', expected an interface name"},
         BadCase{"module a { valued P { int x; };",
                 "main.idl:1:32: error: unexpected end of file, expected '}' to close module 'a' "
                 "opened at main.idl:1:8"},
-        BadCase{"}", "main.idl:1:1: error: unexpected '}', expected a definition (module, enum, "
-                     "valued, event, exception or interface)"},
+        BadCase{"}",
+                "main.idl:1:1: error: unexpected '}', expected a definition (module, enum, "
+                "valued, event, exception or interface)"},
         BadCase{"valued P { int x; int x; };",
                 "main.idl:1:23: error: field 'x' is already declared at main.idl:1:16, expected a "
                 "name not yet used in valued 'P'"},
