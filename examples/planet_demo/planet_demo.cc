@@ -4,9 +4,11 @@
 //   planet_demo server     runs only the server (prints "READY <port>")
 //   planet_demo client P   runs only the client against 127.0.0.1:P
 //
-// The client calls the server, subscribes a listener object of its own and receives a stream
-// of sound events on it (the server calls back over the client's connection), then uploads a
-// 16 MiB camera image while small calls keep flowing on the same connection.
+// The interfaces are written in PLANET IDL (home.idl) and compiled by planet-idl into the typed
+// stubs and servant bases used here. The client calls the server, subscribes a listener object
+// of its own and receives sound events on it (the server calls back over the client's
+// connection), pulls a second of audio from a stream, then uploads a 16 MiB camera image while
+// small calls keep flowing on the same connection.
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -18,6 +20,7 @@
 #include <asio/use_awaitable.hpp>
 #include <asio/use_future.hpp>
 #include <atomic>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <future>
@@ -26,8 +29,10 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include "home.planet.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/proxy.h"
+#include "icars/planet/stream.h"
 
 extern char** environ;
 
@@ -35,20 +40,6 @@ namespace planet = icars::planet;
 using namespace std::chrono_literals;
 
 namespace demo {
-
-struct Home {
-  static constexpr std::string_view type_id = "demo::Home";
-  static constexpr planet::Operation<std::string(std::string)> hello{"hello"};
-  static constexpr planet::Operation<std::int32_t(planet::ObjectRef, std::int32_t)> subscribe{
-      "subscribe"};
-  static constexpr planet::Operation<std::int64_t(planet::Binary)> upload_image{"upload_image"};
-  static constexpr planet::Operation<std::int64_t()> uptime_ms{"uptime_ms"};
-};
-
-struct SoundListener {
-  static constexpr std::string_view type_id = "demo::SoundListener";
-  static constexpr planet::OneWay<planet::Event> on_event{"on_event"};
-};
 
 std::shared_ptr<spdlog::logger> quiet_logger(const std::string& name) {
   auto log = std::make_shared<spdlog::logger>(
@@ -58,15 +49,12 @@ std::shared_ptr<spdlog::logger> quiet_logger(const std::string& name) {
 }
 
 // Sends `count` sound events to the subscriber, one every 20 ms, over the subscriber's link.
-asio::awaitable<void> publish(planet::Communicator& comm, std::shared_ptr<planet::Connection> link,
-                              planet::ObjectRef listener, std::int32_t count) {
-  planet::Proxy to(comm, link, listener);
+asio::awaitable<void> publish(planet::Communicator& comm, SoundListenerPrx listener,
+                              std::int32_t count) {
   asio::steady_timer timer(comm.io());
   for (std::int32_t i = 0; i < count; ++i) {
-    planet::Event e("SoundEvent");
-    e.set("seq", i).set("direction_deg", 30.0 * i).set("level_db", 40 + (i * 7) % 30);
     try {
-      to.notify(SoundListener::on_event, e);
+      listener.on_sound(SoundEvent{i, 30.0 * i, 40 + (i * 7) % 30});
     } catch (const planet::Error& err) {
       std::printf("[server] subscriber gone: %s\n", err.what());
       co_return;
@@ -75,6 +63,71 @@ asio::awaitable<void> publish(planet::Communicator& comm, std::shared_ptr<planet
     co_await timer.async_wait(asio::use_awaitable);
   }
 }
+
+// Writes `milliseconds` of a 440 Hz tone as 16 kHz 16-bit PCM, 100 ms at a time, in real time.
+asio::awaitable<void> record(planet::Communicator& comm, std::shared_ptr<planet::OutputStream> out,
+                             std::int32_t milliseconds) {
+  asio::steady_timer timer(comm.io());
+  std::int64_t sample = 0;
+  try {
+    for (std::int32_t done = 0; done < milliseconds; done += 100) {
+      std::vector<std::byte> block(2 * 16 * static_cast<std::size_t>(std::min(100, milliseconds - done)));
+      for (std::size_t i = 0; i < block.size(); i += 2, ++sample) {
+        const auto v = static_cast<std::int16_t>(8000 * std::sin(2 * 3.14159265 * 440 *
+                                                                 static_cast<double>(sample) / 16000));
+        block[i] = static_cast<std::byte>(static_cast<std::uint16_t>(v) & 0xFF);
+        block[i + 1] = static_cast<std::byte>(static_cast<std::uint16_t>(v) >> 8);
+      }
+      co_await out->async_write(std::move(block), asio::use_awaitable);
+      timer.expires_after(100ms);
+      co_await timer.async_wait(asio::use_awaitable);
+    }
+    out->close();
+  } catch (const planet::Error& err) {
+    std::printf("[server] recording stopped: %s\n", err.what());
+  }
+}
+
+class HomeObject final : public HomeServant {
+ public:
+  explicit HomeObject(planet::Communicator& comm) : comm_(comm) {}
+
+  std::string hello(const std::string& who, const planet::Current& c) override {
+    std::printf("[server] hello from %s (link %s)\n", who.c_str(), c.connection->describe().c_str());
+    std::fflush(stdout);
+    return "welcome home, " + who;
+  }
+  std::int32_t subscribe(SoundListenerPrx listener, std::int32_t count,
+                         const planet::Current& c) override {
+    std::printf("[server] %s subscribed %s for %d sound events\n", c.connection->peer_pun().c_str(),
+                listener.path().c_str(), count);
+    std::fflush(stdout);
+    asio::co_spawn(comm_.io(), publish(comm_, std::move(listener), count), asio::detached);
+    return count;
+  }
+  std::int64_t upload_image(const planet::Binary& image, const planet::Current&) override {
+    std::int64_t sum = 0;
+    for (auto b : image.bytes) sum += std::to_integer<std::int64_t>(b);
+    std::printf("[server] received a %zu-byte image, checksum %lld\n", image.bytes.size(),
+                static_cast<long long>(sum));
+    std::fflush(stdout);
+    return sum;
+  }
+  std::int64_t uptime_ms(const planet::Current&) override {
+    return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() -
+                                                                 started_)
+        .count();
+  }
+  planet::StreamRef listen(std::int32_t milliseconds, const planet::Current&) override {
+    auto out = planet::OutputStream::create(comm_);
+    asio::co_spawn(comm_.io(), record(comm_, out, milliseconds), asio::detached);
+    return out->ref();
+  }
+
+ private:
+  planet::Communicator& comm_;
+  const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+};
 
 int run_server(std::uint16_t port) {
   sigset_t set;
@@ -87,35 +140,7 @@ int run_server(std::uint16_t port) {
   options.logger = quiet_logger("server");
   options.pun = "home-server";
   planet::Communicator comm(options);
-  const auto started = std::chrono::steady_clock::now();
-  auto home = std::make_shared<planet::Servant>(std::string(Home::type_id));
-  home->implement(Home::hello, [](const std::string& who, const planet::Current& c) {
-    std::printf("[server] hello from %s (link %s)\n", who.c_str(), c.connection->describe().c_str());
-    std::fflush(stdout);
-    return "welcome home, " + who;
-  });
-  home->implement(Home::subscribe, [&comm](const planet::ObjectRef& listener, std::int32_t count,
-                                           const planet::Current& c) {
-    std::printf("[server] %s subscribed %s for %d sound events\n", c.connection->peer_pun().c_str(),
-                listener.path.c_str(), count);
-    std::fflush(stdout);
-    asio::co_spawn(comm.io(), publish(comm, c.connection, listener, count), asio::detached);
-    return count;
-  });
-  home->implement(Home::upload_image, [](const planet::Binary& image) {
-    std::int64_t sum = 0;
-    for (auto b : image.bytes) sum += std::to_integer<std::int64_t>(b);
-    std::printf("[server] received a %zu-byte image, checksum %lld\n", image.bytes.size(),
-                static_cast<long long>(sum));
-    std::fflush(stdout);
-    return sum;
-  });
-  home->implement(Home::uptime_ms, [started] {
-    return static_cast<std::int64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(
-                                         std::chrono::steady_clock::now() - started)
-                                         .count());
-  });
-  comm.adapter().add("/home", home);
+  comm.adapter().add("/home", std::make_shared<HomeObject>(comm));
   const auto bound = comm.listen("127.0.0.1", port);
   std::printf("READY %u\n", bound);
   std::fflush(stdout);
@@ -125,6 +150,25 @@ int run_server(std::uint16_t port) {
   return 0;
 }
 
+class Listener final : public SoundListenerServant {
+ public:
+  explicit Listener(int expected) : expected_(expected) {}
+  void on_sound(const SoundEvent& e, const planet::Current&) override {
+    std::printf("[client] SoundEvent #%d: direction %.0f deg, level %d dB\n", e.seq,
+                e.direction_deg, e.level_db);
+    if (++received_ == expected_) all_.set_value();
+  }
+  bool wait_all(std::chrono::seconds timeout) {
+    return all_.get_future().wait_for(timeout) == std::future_status::ready;
+  }
+  int received() const { return received_.load(); }
+
+ private:
+  const int expected_;
+  std::atomic<int> received_{0};
+  std::promise<void> all_;
+};
+
 int run_client(std::uint16_t port) {
   planet::CommunicatorOptions options;
   options.logger = quiet_logger("client");
@@ -132,16 +176,8 @@ int run_client(std::uint16_t port) {
   planet::Communicator comm(options);
 
   // The object the server will call back: our sound listener.
-  std::atomic<int> received{0};
-  std::promise<void> all_events;
   constexpr int kEvents = 10;
-  auto listener = std::make_shared<planet::Servant>(std::string(SoundListener::type_id));
-  listener->implement(SoundListener::on_event, [&](const planet::Event& e) {
-    std::printf("[client] %s #%d: direction %.0f deg, level %d dB\n", e.type().c_str(),
-                e.get<std::int32_t>("seq"), e.get<double>("direction_deg"),
-                e.get<std::int32_t>("level_db"));
-    if (++received == kEvents) all_events.set_value();
-  });
+  auto listener = std::make_shared<Listener>(kEvents);
   comm.adapter().add("/robot/sound-listener", listener);
 
   auto peer = comm.connect("127.0.0.1", port);
@@ -150,20 +186,24 @@ int run_client(std::uint16_t port) {
     return 1;
   }
   std::printf("[client] connected to %s\n", peer->connection()->describe().c_str());
-  planet::Proxy home(comm, peer, "/home");
+  HomePrx home(comm, peer, "/home");
 
   const auto t0 = std::chrono::steady_clock::now();
-  const std::string greeting = home.call(Home::hello, "living-room-robot");
+  const std::string greeting = home.hello("living-room-robot");
   const auto rtt = std::chrono::steady_clock::now() - t0;
   std::printf("[client] hello -> \"%s\" (%lld us)\n", greeting.c_str(),
               static_cast<long long>(std::chrono::duration_cast<std::chrono::microseconds>(rtt).count()));
 
-  const planet::ObjectRef me{"", "/robot/sound-listener", std::string(SoundListener::type_id)};
-  home.call(Home::subscribe, me, kEvents);
-  if (all_events.get_future().wait_for(10s) != std::future_status::ready) {
-    std::fprintf(stderr, "[client] only %d of %d events arrived\n", received.load(), kEvents);
+  home.subscribe(comm.reference<SoundListener>("/robot/sound-listener"), kEvents);
+  if (!listener->wait_all(10s)) {
+    std::fprintf(stderr, "[client] only %d of %d events arrived\n", listener->received(), kEvents);
     return 1;
   }
+
+  auto audio = home.listen(1000);
+  std::size_t audio_bytes = 0;
+  for (auto chunk = audio->read(); !chunk.empty(); chunk = audio->read()) audio_bytes += chunk.size();
+  std::printf("[client] streamed %zu bytes of audio (1 s of 16 kHz 16-bit PCM)\n", audio_bytes);
 
   planet::Binary image;
   image.bytes.resize(16u << 20);
@@ -173,11 +213,12 @@ int run_client(std::uint16_t port) {
     expected += static_cast<std::int64_t>(i % 251);
   }
   const auto upload_start = std::chrono::steady_clock::now();
-  auto upload = home.with_timeout(60s).async_call(Home::upload_image, {std::move(image)},
-                                                  asio::use_future);
+  HomePrx patient = home;
+  patient.set_timeout(60s);
+  auto upload = patient.upload_image_async(std::move(image), asio::use_future);
   int small_calls = 0;
   while (upload.wait_for(0s) != std::future_status::ready) {
-    (void)home.call(Home::uptime_ms);
+    (void)home.uptime_ms();
     ++small_calls;
   }
   const std::int64_t checksum = upload.get();
@@ -190,7 +231,7 @@ int run_client(std::uint16_t port) {
               small_calls);
 
   try {
-    planet::Proxy(comm, peer, "/garage").call(Home::uptime_ms);
+    HomePrx(comm, peer, "/garage").uptime_ms();
   } catch (const planet::Error& e) {
     std::printf("[client] calling a missing object fails clearly: %s\n", e.what());
   }
@@ -199,7 +240,7 @@ int run_client(std::uint16_t port) {
               static_cast<unsigned long long>(stats.messages_sent),
               static_cast<unsigned long long>(stats.frames_sent),
               static_cast<unsigned long long>(stats.messages_received));
-  return checksum == expected ? 0 : 1;
+  return checksum == expected && audio_bytes == 32000 ? 0 : 1;
 }
 
 int run_both(const char* self) {

@@ -83,6 +83,8 @@ class Proxy {
     copy.timeout_ = timeout;
     return copy;
   }
+  // Sets the deadline of later calls through this proxy (typed stubs keep their type).
+  void set_timeout(std::chrono::milliseconds timeout) { timeout_ = timeout; }
 
   // Synchronous call: blocks the calling thread until the reply, an error or the timeout.
   // Calling it on the communicator's io thread throws (it would deadlock); use async_call.
