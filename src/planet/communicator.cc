@@ -113,6 +113,13 @@ std::shared_ptr<Link> Communicator::resolve(const ObjectRef& ref,
   for (auto& c : manager_->connections()) {
     if (c->is_open() && c->peer_pun() == ref.pun) return c;
   }
+  if (ref.pun == manager_->local_pun()) {
+    throw Error(ErrorKind::refused,
+                fmt::format("the reference to {} names this endpoint ('{}') itself; PLANET does "
+                            "not call its own servants over the network: use the servant at that "
+                            "path directly",
+                            ref.path, ref.pun));
+  }
   throw Error(ErrorKind::refused,
               fmt::format("the reference to {} names endpoint '{}', which is neither the peer it "
                           "came from nor any connected endpoint",

@@ -316,7 +316,9 @@ void Generator::write_struct(const Struct& s) {
 
 void Generator::write_exception_class(const Struct& s) {
   h_ += fmt::format("class {} : public icars::planet::RemoteException {{\n public:\n", s.name);
-  h_ += fmt::format("  static constexpr std::string_view type_id = \"{}\";\n\n", s.qualified_name);
+  // Named static_type_id so that RemoteException::type_id() stays callable on the derived class.
+  h_ += fmt::format("  static constexpr std::string_view static_type_id = \"{}\";\n\n",
+                    s.qualified_name);
   std::vector<std::string> params =
       map(s.fields, [](const Field& f) { return stub_param(f.type) + " " + f.name; });
   params.emplace_back("std::string message = {}");
@@ -577,7 +579,7 @@ void Generator::write_exception_bodies(const Struct& s) {
     properties += fmt::format("\n                          .set(\"{}\", {})", f.name, f.name);
   }
   cc_ += fmt::format(
-      "    : RemoteException(std::string(type_id), std::move(message),\n"
+      "    : RemoteException(std::string(static_type_id), std::move(message),\n"
       "                      {})",
       properties);
   for (const Field& f : s.fields) cc_ += fmt::format(",\n      {}_({})", f.name, f.name);
@@ -597,7 +599,7 @@ void Generator::write_translator(const Interface& i, const Operation& op) {
                   translator_name(i, op));
   for (const Struct* x : op.raises) {
     cc_ += fmt::format(
-        "    if (e.type_id() == {0}::type_id) return std::make_exception_ptr({0}(e));\n",
+        "    if (e.type_id() == {0}::static_type_id) return std::make_exception_ptr({0}(e));\n",
         cpp_name(*x));
   }
   cc_ +=

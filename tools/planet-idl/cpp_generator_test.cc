@@ -87,7 +87,7 @@ TEST(CppGenerator, ExceptionsDeriveFromRemoteExceptionAndStoreTheirFields) {
       generate("module a { exception NoSuchChannel { int channel; string why; }; }");
   EXPECT_CONTAINS(cpp.header,
                   "class NoSuchChannel : public icars::planet::RemoteException {\n public:\n"
-                  "  static constexpr std::string_view type_id = \"a::NoSuchChannel\";");
+                  "  static constexpr std::string_view static_type_id = \"a::NoSuchChannel\";");
   EXPECT_CONTAINS(cpp.header,
                   "explicit NoSuchChannel(std::int32_t channel, const std::string& why, "
                   "std::string message = {});");
@@ -96,7 +96,7 @@ TEST(CppGenerator, ExceptionsDeriveFromRemoteExceptionAndStoreTheirFields) {
   EXPECT_CONTAINS(cpp.header, "std::int32_t channel() const { return channel_; }");
   EXPECT_CONTAINS(cpp.header, "const std::string& why() const { return why_; }");
   EXPECT_CONTAINS(cpp.source,
-                  "RemoteException(std::string(type_id), std::move(message),\n"
+                  "RemoteException(std::string(static_type_id), std::move(message),\n"
                   "                      icars::planet::Properties()\n"
                   "                          .set(\"channel\", channel)\n");
   EXPECT_CONTAINS(cpp.source, "channel_(wire.properties().get<std::int32_t>(\"channel\"))");
@@ -163,7 +163,7 @@ TEST(CppGenerator, InterfacesGetADescriptionAProxyAndAServantBase) {
                   "icars::planet::Current& current) = 0;");
   const std::string& cc = cpp.source;
   EXPECT_CONTAINS(cc,
-                  "if (e.type_id() == ::a::NoSuchChannel::type_id) return "
+                  "if (e.type_id() == ::a::NoSuchChannel::static_type_id) return "
                   "std::make_exception_ptr(::a::NoSuchChannel(e));");
   EXPECT_CONTAINS(cc, "TVServant::TVServant() : Servant(std::string(TV::type_id)) {");
   EXPECT_CONTAINS(cc,

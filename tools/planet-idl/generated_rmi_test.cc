@@ -222,6 +222,7 @@ TEST_F(GeneratedRmi, RaisedExceptionsArriveAsTheirGeneratedClasses) {
   } catch (const NoSuchChannel& e) {
     EXPECT_EQ(e.channel(), 100);
     EXPECT_EQ(e.remote_message(), "there is no channel 100");
+    EXPECT_EQ(e.type_id(), NoSuchChannel::static_type_id);
   }
   try {
     tv().power(false);

@@ -175,7 +175,7 @@ TEST(GeneratedException, StoresItsFieldsAsProperties) {
   EXPECT_EQ(e.channel(), 7);
   const p::RemoteException& remote = e;
   EXPECT_EQ(remote.type_id(), "fixture::NoSuchChannel");
-  EXPECT_EQ(NoSuchChannel::type_id, "fixture::NoSuchChannel");
+  EXPECT_EQ(NoSuchChannel::static_type_id, "fixture::NoSuchChannel");
   EXPECT_EQ(remote.remote_message(), "there is no channel 7");
   EXPECT_EQ(remote.properties().get<std::int32_t>("channel"), 7);
   EXPECT_EQ(remote.kind(), p::ErrorKind::failed);

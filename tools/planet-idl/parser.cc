@@ -61,8 +61,8 @@ constexpr std::array<std::string_view, 18> kReservedOperationNames = {
 // Parameters the generated methods add after the operation's own.
 constexpr std::array<std::string_view, 2> kReservedParameterNames = {"current", "token"};
 // Members of RemoteException and the generated exception constructor.
-constexpr std::array<std::string_view, 6> kReservedExceptionFields = {
-    "message", "type_id", "what", "kind", "properties", "remote_message"};
+constexpr std::array<std::string_view, 7> kReservedExceptionFields = {
+    "message", "type_id", "what", "kind", "properties", "remote_message", "static_type_id"};
 
 template <class Array>
 bool contains(const Array& words, std::string_view word) {
@@ -519,8 +519,8 @@ Field FileParser::parse_field(const Struct& s) {
   if (s.kind == DefinitionKind::exception && contains(kReservedExceptionFields, name)) {
     throw CompileError(name_token.location,
                        fmt::format("field name '{}' is used by the exception's C++ class", name),
-                       "a name other than message, type_id, what, kind, properties and "
-                       "remote_message");
+                       "a name other than message, type_id, static_type_id, what, kind, "
+                       "properties and remote_message");
   }
   for (const Field& other : s.fields) {
     if (other.name == name) {

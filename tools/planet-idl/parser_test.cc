@@ -259,8 +259,8 @@ INSTANTIATE_TEST_SUITE_P(
                 "field name"},
         BadCase{"exception E { string message; };",
                 "main.idl:1:22: error: field name 'message' is used by the exception's C++ "
-                "class, expected a name other than message, type_id, what, kind, properties and "
-                "remote_message"},
+                "class, expected a name other than message, type_id, static_type_id, what, kind, "
+                "properties and remote_message"},
         BadCase{"interface I { void f(); int f(); };",
                 "main.idl:1:29: error: operation 'f' is already declared at main.idl:1:20, "
                 "expected a name not yet used in interface 'I'"},
