@@ -211,6 +211,23 @@ class FileParser {
     }
     return name;
   }
+  // The definition `name` names, which must be of `kind` (an interface or an exception, hence
+  // "an"); otherwise an error naming what it is instead.
+  const Definition& lookup_as(const ScopedName& name, DefinitionKind kind,
+                              std::string_view what) const {
+    const Definition* d = lookup(name);
+    if (d == nullptr || d->kind != kind) {
+      throw CompileError(
+          name.location,
+          d == nullptr
+              ? fmt::format("unknown {} '{}'", what, name.text)
+              : fmt::format("'{}' is {} {}, not an {}", name.text,
+                            d->kind == DefinitionKind::enumeration ? "an" : "a", idl_name(d->kind),
+                            what),
+          fmt::format("the name of an {} defined before this point", what));
+    }
+    return *d;
+  }
   const Definition* lookup(const ScopedName& name) const {
     return symbols_.lookup(scope_, name.text, name.absolute);
   }
@@ -556,17 +573,8 @@ void FileParser::parse_interface(Module& parent) {
 void FileParser::parse_bases(Interface& i) {
   do {
     const ScopedName name = parse_scoped_name("the name of a base interface");
-    const Definition* d = lookup(name);
-    if (d == nullptr || d->kind != DefinitionKind::interface) {
-      throw CompileError(
-          name.location,
-          d == nullptr
-              ? fmt::format("unknown interface '{}'", name.text)
-              : fmt::format("'{}' is {} {}, not an interface", name.text,
-                            d->kind == DefinitionKind::enumeration ? "an" : "a", idl_name(d->kind)),
-          "the name of an interface defined before this point");
-    }
-    const auto* base = static_cast<const Interface*>(d);
+    const auto* base =
+        static_cast<const Interface*>(&lookup_as(name, DefinitionKind::interface, "interface"));
     if (std::find(i.bases.begin(), i.bases.end(), base) != i.bases.end()) {
       throw CompileError(name.location, fmt::format("'{}' is named twice as a base", name.text),
                          "each base interface once");
@@ -686,17 +694,8 @@ void FileParser::parse_raises(Operation& op) {
   expect(TokenKind::left_paren, "'(' after 'raises'");
   do {
     const ScopedName name = parse_scoped_name("the name of an exception");
-    const Definition* d = lookup(name);
-    if (d == nullptr || d->kind != DefinitionKind::exception) {
-      throw CompileError(
-          name.location,
-          d == nullptr
-              ? fmt::format("unknown exception '{}'", name.text)
-              : fmt::format("'{}' is {} {}, not an exception", name.text,
-                            d->kind == DefinitionKind::enumeration ? "an" : "a", idl_name(d->kind)),
-          "the name of an exception defined before this point");
-    }
-    const auto* exception = static_cast<const Struct*>(d);
+    const auto* exception =
+        static_cast<const Struct*>(&lookup_as(name, DefinitionKind::exception, "exception"));
     if (std::find(op.raises.begin(), op.raises.end(), exception) != op.raises.end()) {
       throw CompileError(name.location, fmt::format("'{}' is raised twice", name.text),
                          "each exception once");
