@@ -211,8 +211,15 @@ void InputChannel::on_connection_closed(const Error& reason) {
 void InputChannel::deliver() {
   if (!done_) return;
   if (!chunks_.empty()) {
+    // Hand over everything buffered (up to a quarter window) at once: one completion per
+    // batch of DATA messages, not one per 16 KiB.
     std::vector<std::byte> chunk = std::move(chunks_.front());
     chunks_.pop_front();
+    const std::size_t batch = std::max<std::size_t>(options_.window / 4, kMaxStreamChunk);
+    while (!chunks_.empty() && chunk.size() + chunks_.front().size() <= batch) {
+      chunk.insert(chunk.end(), chunks_.front().begin(), chunks_.front().end());
+      chunks_.pop_front();
+    }
     buffered_ -= chunk.size();
     consumed_ += chunk.size();
     // Grant the consumed bytes back once half the window is free: few PULLs, steady flow.

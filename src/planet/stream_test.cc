@@ -28,7 +28,8 @@ Checksum expected_checksum(std::uint64_t bytes) {
   std::vector<std::byte> block;
   for (std::uint64_t at = 0; at < bytes;) {
     block.resize(std::min<std::uint64_t>(bytes - at, 1u << 16));
-    for (auto& b : block) b = planet_test::pattern_byte(at++);
+    planet_test::fill_pattern(at, block);
+    at += block.size();
     sum.add(block);
   }
   return sum;
@@ -36,7 +37,7 @@ Checksum expected_checksum(std::uint64_t bytes) {
 
 std::vector<std::byte> pattern(std::uint64_t from, std::size_t n) {
   std::vector<std::byte> block(n);
-  for (auto& b : block) b = planet_test::pattern_byte(from++);
+  planet_test::fill_pattern(from, block);
   return block;
 }
 
@@ -266,13 +267,16 @@ TEST_F(StreamProcess, HundredMegabytesReachASlowReaderWithBoundedMemoryOnBothSid
                               window(kWindow));
   Checksum sum;
   std::size_t most_buffered = 0;
-  std::uint64_t chunks = 0;
+  std::uint64_t next_pause = 0;
   for (auto chunk = in->read(); !chunk.empty(); chunk = in->read()) {
     sum.add(chunk);
     most_buffered = std::max(most_buffered, in->buffered());
-    // The deliberately slow reader: it pauses 1 ms per 256 KiB read, so the writer would run
-    // far ahead if the credit did not hold it back.
-    if (++chunks % 16 == 0) std::this_thread::sleep_for(1ms);
+    // The deliberately slow reader: it pauses 1 ms per 128 KiB read (at most 128 MB/s, a fifth
+    // of what the writer manages), so the writer would run far ahead without the credit.
+    while (sum.bytes >= next_pause) {
+      std::this_thread::sleep_for(1ms);
+      next_pause += 128u << 10;
+    }
   }
   const auto reader_after = planet_test::memory_kb(false);
   const auto writer_after = streams().call(Streams::memory);

@@ -119,9 +119,10 @@ class InputStream {
 
   StreamRef ref() const { return ref_; }
 
-  // Reads the next chunk. Completion signature void(std::exception_ptr, std::vector<std::byte>):
-  // a non-empty chunk, an empty chunk at the end of the stream, or the error (chunks that
-  // arrived before an error are delivered first).
+  // Reads what has arrived (at least one DATA message, at most a quarter of the window, in
+  // order). Completion signature void(std::exception_ptr, std::vector<std::byte>): the
+  // non-empty data, an empty vector at the end of the stream, or the error (data that arrived
+  // before an error is delivered first).
   template <class Token>
   auto async_read(Token&& token) {
     return asio::async_initiate<Token, void(std::exception_ptr, std::vector<std::byte>)>(

@@ -1,6 +1,7 @@
 #include "test_interfaces.h"
 
 #include <algorithm>
+#include <cstring>
 #include <chrono>
 #include <fstream>
 #include <mutex>
@@ -96,8 +97,33 @@ std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator) {
   return s;
 }
 
-std::byte pattern_byte(std::uint64_t i) {
-  return static_cast<std::byte>((i * 31 + (i >> 13)) & 0xFF);
+namespace {
+// The pattern repeats every kPatternPeriod bytes (a prime, so it does not line up with chunk
+// sizes); the table holds two periods so any run of up to one period is a single copy.
+constexpr std::uint64_t kPatternPeriod = 65521;
+const std::vector<std::byte>& pattern_table() {
+  static const std::vector<std::byte> table = [] {
+    std::vector<std::byte> t(2 * kPatternPeriod);
+    for (std::uint64_t i = 0; i < t.size(); ++i) {
+      const std::uint64_t k = i % kPatternPeriod;
+      t[i] = static_cast<std::byte>((k * 31 + k / 251) & 0xFF);
+    }
+    return t;
+  }();
+  return table;
+}
+}  // namespace
+
+std::byte pattern_byte(std::uint64_t i) { return pattern_table()[i % kPatternPeriod]; }
+
+void fill_pattern(std::uint64_t from, std::span<std::byte> out) {
+  const auto& table = pattern_table();
+  while (!out.empty()) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(out.size(), kPatternPeriod));
+    std::memcpy(out.data(), table.data() + from % kPatternPeriod, n);
+    out = out.subspan(n);
+    from += n;
+  }
 }
 
 void Checksum::add(std::span<const std::byte> chunk) {
@@ -137,7 +163,8 @@ asio::awaitable<void> produce(std::shared_ptr<p::OutputStream> out, std::int64_t
     const auto total = static_cast<std::uint64_t>(bytes);
     while (at < total) {
       std::vector<std::byte> block(std::min<std::uint64_t>(total - at, static_cast<std::uint64_t>(chunk)));
-      for (auto& b : block) b = pattern_byte(at++);
+      fill_pattern(at, block);
+      at += block.size();
       co_await out->async_write(std::move(block), asio::use_awaitable);
       std::lock_guard lock(state->mutex);
       state->max_queued = std::max(state->max_queued,

@@ -150,6 +150,7 @@ struct Streams {
 };
 
 std::byte pattern_byte(std::uint64_t i);
+void fill_pattern(std::uint64_t from, std::span<std::byte> out);  // out[k] = pattern_byte(from + k)
 // FNV-1a over a stream, fed chunk by chunk.
 struct Checksum {
   std::uint64_t value = 14695981039346656037ull;
