@@ -14,6 +14,7 @@
 #include "icars/planet/proxy.h"
 #include "icars/planet/rmi_message.h"
 #include "icars/planet/stream.h"
+#include "stream_table.h"
 #include "test_interfaces.h"
 
 namespace icars::planet {
@@ -187,7 +188,9 @@ TEST_F(StreamChannel, AWriterThatIgnoresItsCreditIsCutOff) {
     EXPECT_EQ(e.kind(), ErrorKind::bad_data) << e.what();
     EXPECT_NE(std::string(e.what()).find("credit"), std::string::npos) << e.what();
   }
-  // The writer was told to stop, and the connection still serves calls.
+  // The writer was told to stop (its stream leaves the server's table once the CANCEL
+  // arrived), and the connection still serves calls.
+  ASSERT_TRUE(planet_test::wait_until([&] { return server_.stream_table().size() == 0; }));
   EXPECT_THROW(out->write(pattern(0, 10)), Error);
   EXPECT_EQ(last_write(), "");
 }
