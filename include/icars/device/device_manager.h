@@ -1,0 +1,62 @@
+// A device manager: hosts devices, serves their capabilities over PLANET and registers them
+// with the mediating server's device registry (ICARS paper 3.2, Fig. 16b).
+//
+// It registers every device as soon as its link to the server is up, and again after each
+// reconnection, so a restarted server (or a restarted manager) gets the devices back without
+// anyone restarting anything. Devices never talk to each other: the server calls them.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "icars/device/device.h"
+#include "icars/planet/communicator.h"
+
+namespace icars::device {
+
+inline constexpr std::string_view kRegistryPath = "/sf/registry";  // where the server serves it
+
+class DeviceManager {
+ public:
+  explicit DeviceManager(planet::Communicator& communicator);
+  ~DeviceManager();
+  DeviceManager(const DeviceManager&) = delete;
+  DeviceManager& operator=(const DeviceManager&) = delete;
+
+  // Serves the device's capabilities; call before connect(). Throws std::invalid_argument on a
+  // duplicate device id.
+  void add(std::shared_ptr<Device> device);
+  const std::vector<std::shared_ptr<Device>>& devices() const { return devices_; }
+
+  // Connects to the server and keeps the link up; every (re)connection registers all devices.
+  void connect(const std::string& host, std::uint16_t port, planet::ReconnectPolicy policy = {});
+  const std::shared_ptr<planet::Peer>& peer() const { return peer_; }
+
+  // Rounds in which every device was registered (1 after the first connection, +1 per
+  // reconnection); failures are logged and retried on the next reconnection.
+  std::uint64_t registration_rounds() const;
+  // Blocks (not on the io thread) until `rounds` registration rounds completed.
+  bool wait_registered(std::uint64_t rounds, std::chrono::milliseconds timeout) const;
+  std::string last_error() const;
+
+ private:
+  void register_all(std::shared_ptr<planet::Connection> connection);
+
+  planet::Communicator& communicator_;
+  std::vector<std::shared_ptr<Device>> devices_;
+  std::shared_ptr<planet::Peer> peer_;
+  std::uint64_t listener_ = 0;
+
+  mutable std::mutex mutex_;
+  mutable std::condition_variable changed_;
+  std::uint64_t rounds_ = 0;
+  std::string last_error_;
+};
+
+}  // namespace icars::device

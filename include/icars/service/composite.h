@@ -1,0 +1,131 @@
+// Adaptive services (ICARS paper 3.3, 4.3.1, Figs. 4 and 10b): services composed from or
+// augmenting other services, built by factories that watch the service container.
+//
+// - SpeechSensor = SoundSensor + SpeechRecognizer: every sound event's audio is recognized and
+//   published as a SpeechEvent carrying the text.
+// - CameraFactory: makes a camera sharable: one capture serves every user that asks within
+//   `max_age`, so several behaviors looking through one robot camera cost one remote call.
+// - UserLocator = CameraFactory + FaceRecognizer: finds the people the camera sees and
+//   publishes where they are.
+//
+// A composite is available while all its parts are. CompositeFactories create composites as
+// soon as their parts are in the container and keep them across the parts' reconnections.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "icars/service/adaptor.h"
+#include "icars/service/service_container.h"
+
+namespace icars::service {
+
+struct SpeechEvent {
+  std::string text;
+  double confidence = 0;
+  double direction = 0;  // radians, from the microphone towards the speaker
+  std::string room;      // the microphone's room
+  std::string device;    // the microphone
+  std::int64_t time_ms = 0;
+};
+
+class SpeechSensor final : public Service {
+ public:
+  SpeechSensor(std::shared_ptr<SoundSensor> sound, std::shared_ptr<SpeechRecognizerService> recognizer);
+  ~SpeechSensor() override;
+
+  std::uint64_t subscribe(std::function<void(const SpeechEvent&)> fn) { return events_.add(std::move(fn)); }
+  void unsubscribe(std::uint64_t id) { events_.remove(id); }
+  std::uint64_t recognized() const { return recognized_.load(); }
+  std::uint64_t rejected() const { return rejected_.load(); }
+
+ private:
+  void on_sound(const home::SoundEvent& e);
+  void update_availability();
+
+  std::shared_ptr<SoundSensor> sound_;
+  std::shared_ptr<SpeechRecognizerService> recognizer_;
+  std::uint64_t sound_subscription_ = 0;
+  std::uint64_t sound_watch_ = 0;
+  std::uint64_t recognizer_watch_ = 0;
+  Listeners<SpeechEvent> events_;
+  std::atomic<std::uint64_t> recognized_{0};
+  std::atomic<std::uint64_t> rejected_{0};
+};
+
+// A shared camera: `capture` completes with the newest image no older than max_age, taking a
+// new one (one remote call for all waiting users) when needed.
+class CameraFactory final : public Service {
+ public:
+  using Capture = std::function<void(std::exception_ptr, const home::Image&)>;
+  CameraFactory(std::shared_ptr<CameraService> camera, std::chrono::milliseconds max_age);
+  ~CameraFactory() override;
+
+  void capture(Capture done);
+  std::uint64_t remote_captures() const { return remote_captures_.load(); }
+
+ private:
+  std::shared_ptr<CameraService> camera_;
+  std::chrono::milliseconds max_age_;
+  std::uint64_t watch_ = 0;
+  std::mutex mutex_;
+  bool capturing_ = false;
+  std::vector<Capture> waiting_;
+  std::chrono::steady_clock::time_point taken_at_{};
+  std::optional<home::Image> latest_;
+  std::atomic<std::uint64_t> remote_captures_{0};
+};
+
+struct UserLocation {
+  std::string person;
+  double x = 0;
+  double y = 0;
+  double confidence = 0;
+  std::string camera;  // the camera's device
+  std::int64_t time_ms = 0;
+};
+
+class UserLocator final : public Service {
+ public:
+  UserLocator(std::shared_ptr<CameraFactory> camera, std::shared_ptr<FaceRecognizerService> faces);
+  ~UserLocator() override;
+
+  // Looks once: captures (shared), recognizes, publishes one UserLocation per face found and
+  // completes with them.
+  void locate(std::function<void(std::exception_ptr, const std::vector<UserLocation>&)> done);
+  std::uint64_t subscribe(std::function<void(const UserLocation&)> fn) { return events_.add(std::move(fn)); }
+  void unsubscribe(std::uint64_t id) { events_.remove(id); }
+
+ private:
+  void update_availability();
+  std::shared_ptr<CameraFactory> camera_;
+  std::shared_ptr<FaceRecognizerService> faces_;
+  std::uint64_t camera_watch_ = 0;
+  std::uint64_t faces_watch_ = 0;
+  Listeners<UserLocation> events_;
+};
+
+// Builds the adaptive services of the house as their parts appear in the container:
+// a SpeechSensor per SoundSensor (with the first SpeechRecognizer), a CameraFactory per Camera,
+// and a UserLocator per CameraFactory (with the first FaceRecognizer).
+class CompositeFactory {
+ public:
+  explicit CompositeFactory(ServiceContainer& container,
+                            std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(200));
+  ~CompositeFactory();
+  CompositeFactory(const CompositeFactory&) = delete;
+  CompositeFactory& operator=(const CompositeFactory&) = delete;
+
+ private:
+  void compose();
+  ServiceContainer& container_;
+  std::chrono::milliseconds camera_max_age_;
+  std::uint64_t watch_ = 0;
+  std::recursive_mutex mutex_;
+};
+
+}  // namespace icars::service

@@ -1,0 +1,169 @@
+#include "icars/service/composite.h"
+
+namespace icars::service {
+
+// --- SpeechSensor ----------------------------------------------------------------------------
+
+SpeechSensor::SpeechSensor(std::shared_ptr<SoundSensor> sound,
+                           std::shared_ptr<SpeechRecognizerService> recognizer)
+    : Service(sound->attributes().device + ".speech_sensor", "SpeechSensor", sound->attributes()),
+      sound_(std::move(sound)),
+      recognizer_(std::move(recognizer)) {
+  sound_subscription_ = sound_->subscribe([this](const home::SoundEvent& e) { on_sound(e); });
+  sound_watch_ = sound_->watch([this](const bool&) { update_availability(); });
+  recognizer_watch_ = recognizer_->watch([this](const bool&) { update_availability(); });
+  update_availability();
+}
+
+SpeechSensor::~SpeechSensor() {
+  sound_->unsubscribe(sound_subscription_);
+  sound_->remove_watcher(sound_watch_);
+  recognizer_->remove_watcher(recognizer_watch_);
+}
+
+void SpeechSensor::update_availability() {
+  set_available(sound_->available() && recognizer_->available());
+}
+
+void SpeechSensor::on_sound(const home::SoundEvent& e) {
+  if (e.audio.bytes.empty()) return;
+  SpeechEvent speech;
+  speech.direction = e.direction;
+  speech.room = e.room;
+  speech.device = e.device;
+  speech.time_ms = e.time_ms;
+  recognizer_->proxy().recognize_async(
+      e.audio, [this, speech = std::move(speech)](std::exception_ptr error,
+                                                  home::Recognition result) mutable {
+        if (error) {
+          ++rejected_;  // not speech, or the recognizer is gone: nothing to publish
+          return;
+        }
+        speech.text = std::move(result.text);
+        speech.confidence = result.confidence;
+        ++recognized_;
+        events_.notify(speech);
+      });
+}
+
+// --- CameraFactory ---------------------------------------------------------------------------
+
+CameraFactory::CameraFactory(std::shared_ptr<CameraService> camera, std::chrono::milliseconds max_age)
+    : Service(camera->attributes().device + ".camera_factory", "CameraFactory", camera->attributes()),
+      camera_(std::move(camera)),
+      max_age_(max_age) {
+  watch_ = camera_->watch([this](const bool& available) { set_available(available); });
+  set_available(camera_->available());
+}
+
+CameraFactory::~CameraFactory() { camera_->remove_watcher(watch_); }
+
+void CameraFactory::capture(Capture done) {
+  {
+    std::lock_guard lock(mutex_);
+    if (latest_ && std::chrono::steady_clock::now() - taken_at_ <= max_age_) {
+      home::Image image = *latest_;
+      done(nullptr, image);
+      return;
+    }
+    waiting_.push_back(std::move(done));
+    if (capturing_) return;  // the capture in flight serves this caller too
+    capturing_ = true;
+  }
+  ++remote_captures_;
+  camera_->proxy().capture_async([this](std::exception_ptr error, home::Image image) {
+    std::vector<Capture> waiting;
+    {
+      std::lock_guard lock(mutex_);
+      capturing_ = false;
+      waiting.swap(waiting_);
+      if (!error) {
+        latest_ = image;
+        taken_at_ = std::chrono::steady_clock::now();
+      }
+    }
+    for (auto& w : waiting) w(error, image);
+  });
+}
+
+// --- UserLocator -----------------------------------------------------------------------------
+
+UserLocator::UserLocator(std::shared_ptr<CameraFactory> camera,
+                         std::shared_ptr<FaceRecognizerService> faces)
+    : Service(camera->attributes().device + ".user_locator", "UserLocator", camera->attributes()),
+      camera_(std::move(camera)),
+      faces_(std::move(faces)) {
+  camera_watch_ = camera_->watch([this](const bool&) { update_availability(); });
+  faces_watch_ = faces_->watch([this](const bool&) { update_availability(); });
+  update_availability();
+}
+
+UserLocator::~UserLocator() {
+  camera_->remove_watcher(camera_watch_);
+  faces_->remove_watcher(faces_watch_);
+}
+
+void UserLocator::update_availability() { set_available(camera_->available() && faces_->available()); }
+
+void UserLocator::locate(std::function<void(std::exception_ptr, const std::vector<UserLocation>&)> done) {
+  camera_->capture([this, done = std::move(done)](std::exception_ptr error, const home::Image& image) {
+    if (error) {
+      done(error, {});
+      return;
+    }
+    faces_->proxy().recognize_async(
+        image, [this, done, camera = attributes().device, time = image.time_ms](
+                   std::exception_ptr e, std::vector<home::Face> faces) {
+          std::vector<UserLocation> found;
+          if (!e) {
+            for (const auto& f : faces) {
+              found.push_back(UserLocation{f.person, f.x, f.y, f.confidence, camera, time});
+              events_.notify(found.back());
+            }
+          }
+          done(e, found);
+        });
+  });
+}
+
+// --- CompositeFactory ------------------------------------------------------------------------
+
+CompositeFactory::CompositeFactory(ServiceContainer& container, std::chrono::milliseconds camera_max_age)
+    : container_(container), camera_max_age_(camera_max_age) {
+  watch_ = container_.watch([this](const std::shared_ptr<Service>&, const ServiceChange& change) {
+    if (change == ServiceChange::added) compose();
+  });
+  compose();
+}
+
+CompositeFactory::~CompositeFactory() { container_.remove_watcher(watch_); }
+
+void CompositeFactory::compose() {
+  std::lock_guard lock(mutex_);  // recursive: adding a composite notifies this watcher again
+  auto recognizer = container_.find_first<SpeechRecognizerService>(ServiceQuery::of_type("SpeechRecognizer"));
+  if (recognizer) {
+    for (auto& s : container_.find(ServiceQuery::of_type("SoundSensor"))) {
+      auto sound = std::dynamic_pointer_cast<SoundSensor>(s);
+      if (sound && !container_.get(sound->attributes().device + ".speech_sensor")) {
+        container_.add(std::make_shared<SpeechSensor>(sound, recognizer));
+      }
+    }
+  }
+  for (auto& s : container_.find(ServiceQuery::of_type("Camera"))) {
+    auto camera = std::dynamic_pointer_cast<CameraService>(s);
+    if (camera && !container_.get(camera->attributes().device + ".camera_factory")) {
+      container_.add(std::make_shared<CameraFactory>(camera, camera_max_age_));
+    }
+  }
+  auto faces = container_.find_first<FaceRecognizerService>(ServiceQuery::of_type("FaceRecognizer"));
+  if (faces) {
+    for (auto& s : container_.find(ServiceQuery::of_type("CameraFactory"))) {
+      auto camera = std::dynamic_pointer_cast<CameraFactory>(s);
+      if (camera && !container_.get(camera->attributes().device + ".user_locator")) {
+        container_.add(std::make_shared<UserLocator>(camera, faces));
+      }
+    }
+  }
+}
+
+}  // namespace icars::service

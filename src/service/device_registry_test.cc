@@ -1,0 +1,203 @@
+// The Service Framework over real PLANET connections: a device manager registers devices, SF
+// creates an adaptor service per capability, discovery finds them by type and attributes,
+// SpeechSensor composes a microphone with a speech recognizer, and services follow their
+// device's connection: unavailable when it drops, back (same objects) when it returns.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <future>
+
+#include "child_process.h"
+#include "icars/device/device_manager.h"
+#include "icars/planet/publisher.h"
+#include "icars/service/composite.h"
+#include "icars/service/device_registry.h"
+#include "icars/service/service_framework.h"
+
+namespace icars::service {
+namespace {
+
+using namespace std::chrono_literals;
+namespace p = icars::planet;
+
+class FakeTV final : public home::TVControlServant {
+ public:
+  void set_power(bool on, const p::Current&) override { state_.on = on; }
+  void set_channel(std::int32_t channel, const p::Current&) override {
+    if (channel < 1 || channel > 99) throw home::OutOfRange("channel", channel, 1, 99);
+    state_.channel = channel;
+  }
+  void set_volume(std::int32_t volume, const p::Current&) override { state_.volume = volume; }
+  home::TVState state(const p::Current&) override { return state_; }
+
+ private:
+  home::TVState state_;
+};
+
+class FakeLight final : public home::LightServant {
+ public:
+  void set_power(bool on, const p::Current&) override { state_.on = on; }
+  void set_intensity(std::int32_t percent, const p::Current&) override { state_.intensity = percent; }
+  home::LightState state(const p::Current&) override { return state_; }
+
+ private:
+  home::LightState state_;
+};
+
+// A microphone whose "audio" is the spoken text itself.
+class FakeMicrophone final : public home::MicrophoneServant {
+ public:
+  void subscribe(home::SoundListenerPrx listener, const p::Current&) override { sounds_.subscribe(listener); }
+  void unsubscribe(home::SoundListenerPrx listener, const p::Current&) override {
+    sounds_.unsubscribe(listener);
+  }
+  p::StreamRef record(std::int32_t, const p::Current&) override {
+    throw p::Error(p::ErrorKind::unimplemented, "no recording in the fake microphone");
+  }
+  void hear(const std::string& text) {
+    home::SoundEvent e;
+    e.device = "mic";
+    e.direction = 1.5;
+    e.level_db = 60;
+    e.room = "living_room";
+    e.audio.bytes.resize(text.size());
+    std::memcpy(e.audio.bytes.data(), text.data(), text.size());
+    sounds_.publish(e);
+  }
+  std::size_t subscribers() const { return sounds_.size(); }
+
+ private:
+  p::Publisher<home::SoundEvent> sounds_{home::SoundListener::on_sound};
+};
+
+class FakeRecognizer final : public home::SpeechRecognizerServant {
+ public:
+  home::Recognition recognize(const p::Binary& audio, const p::Current&) override {
+    std::string text(reinterpret_cast<const char*>(audio.bytes.data()), audio.bytes.size());
+    if (text.empty()) throw home::NotRecognized("silence");
+    return home::Recognition{text, 0.9};
+  }
+};
+
+// The devices of one device manager process, on their own communicator.
+struct DeviceSide {
+  p::Communicator communicator;
+  device::DeviceManager manager{communicator};
+  std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>();
+
+  explicit DeviceSide(std::uint16_t server_port) {
+    auto tv = std::make_shared<device::Device>("tv", "TV", "living_room");
+    tv->add("tv_control", std::make_shared<FakeTV>());
+    auto light = std::make_shared<device::Device>("bedroom_light", "Light", "bedroom");
+    light->add("light", std::make_shared<FakeLight>());
+    auto robot_mic = std::make_shared<device::Device>("robot1_mic", "Microphone", "", "robot1");
+    robot_mic->add("sound_sensor", mic);
+    auto speech = std::make_shared<device::Device>("speech_engine", "SpeechEngine");
+    speech->add("speech_recognizer", std::make_shared<FakeRecognizer>());
+    for (auto& d : {tv, light, robot_mic, speech}) manager.add(d);
+    manager.connect("127.0.0.1", server_port);
+  }
+};
+
+class SF : public ::testing::Test {
+ protected:
+  void SetUp() override { port_ = server_.listen("127.0.0.1", 0); }
+
+  p::Communicator server_;
+  service::ServiceFramework sf_{server_};
+  ServiceContainer& container_ = sf_.container();
+  DeviceRegistry* registry_ = &sf_.registry();
+  std::uint16_t port_ = 0;
+};
+
+TEST_F(SF, RegisteredDevicesBecomeServicesDiscoverableByTypeAndAttributes) {
+  DeviceSide devices(port_);
+  ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
+
+  EXPECT_EQ(container_.find(ServiceQuery::of_type("TVControl")).size(), 1u);
+  EXPECT_EQ(container_.find(ServiceQuery::of_type("LightControl").in_room("bedroom")).size(), 1u);
+  EXPECT_TRUE(container_.find(ServiceQuery::of_type("LightControl").in_room("living_room")).empty());
+  EXPECT_EQ(container_.find(ServiceQuery().in_room("living_room")).size(), 1u);
+  auto carried = container_.find(ServiceQuery().carried_by("robot1"));
+  ASSERT_EQ(carried.size(), 2u);  // the microphone's SoundSensor and the SpeechSensor on it
+  // 4 adaptors (one per capability) + 1 SpeechSensor composite.
+  EXPECT_EQ(container_.all().size(), 5u);
+
+  auto tv = container_.find_first<TVControlService>(ServiceQuery::of_type("TVControl").available());
+  ASSERT_TRUE(tv);
+  tv->proxy().set_power(true);
+  tv->proxy().set_channel(5);
+  EXPECT_EQ(tv->proxy().state().channel, 5);
+  EXPECT_THROW(tv->proxy().set_channel(500), home::OutOfRange);
+}
+
+TEST_F(SF, SpeechSensorTurnsSoundIntoRecognizedSpeech) {
+  DeviceSide devices(port_);
+  ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
+  auto speech = container_.find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor"));
+  ASSERT_TRUE(speech);
+  EXPECT_TRUE(speech->available());
+  std::promise<SpeechEvent> heard;
+  speech->subscribe([&](const SpeechEvent& e) {
+    if (e.text == "turn on the TV") heard.set_value(e);
+  });
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices.mic->subscribers() == 1; }));
+  devices.mic->hear("turn on the TV");
+  auto future = heard.get_future();
+  ASSERT_EQ(future.wait_for(20s), std::future_status::ready);
+  const SpeechEvent e = future.get();
+  EXPECT_EQ(e.room, "living_room");
+  EXPECT_DOUBLE_EQ(e.direction, 1.5);
+  EXPECT_DOUBLE_EQ(e.confidence, 0.9);
+}
+
+TEST_F(SF, ServicesFollowTheirDevicesConnection) {
+  auto devices = std::make_unique<DeviceSide>(port_);
+  ASSERT_TRUE(devices->manager.wait_registered(1, 20s));
+  auto tv = container_.find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
+  auto speech = container_.find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor"));
+  ASSERT_TRUE(tv && speech);
+  std::atomic<int> went_down{0};
+  std::atomic<int> came_back{0};
+  tv->watch([&](const bool& up) { ++(up ? came_back : went_down); });
+  std::atomic<int> heard{0};
+  speech->subscribe([&](const SpeechEvent&) { ++heard; });
+
+  devices.reset();  // the device manager goes away
+  ASSERT_TRUE(planet_test::wait_until([&] { return !tv->available() && !speech->available(); }));
+  EXPECT_EQ(went_down.load(), 1);
+  EXPECT_THROW(tv->proxy().set_power(true), p::Error);
+  EXPECT_EQ(registry_->connected_devices(), 0u);
+
+  devices = std::make_unique<DeviceSide>(port_);  // and comes back
+  ASSERT_TRUE(devices->manager.wait_registered(1, 20s));
+  ASSERT_TRUE(planet_test::wait_until([&] { return tv->available() && speech->available(); }));
+  EXPECT_EQ(came_back.load(), 1);
+  EXPECT_EQ(container_.all().size(), 5u) << "the same services were rebound, none added";
+  tv->proxy().set_channel(7);
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices->mic->subscribers() == 1; }));
+  devices->mic->hear("volume up");
+  EXPECT_TRUE(planet_test::wait_until([&] { return heard.load() == 1; }));
+}
+
+TEST_F(SF, BadRegistrationsAreRefusedWithAReason) {
+  p::Communicator client;
+  auto peer = client.connect("127.0.0.1", port_);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  df::DeviceRegistryPrx registry(client, peer, std::string(device::kRegistryPath));
+  try {
+    registry.register_device(df::DeviceInfo{"lamp", "Light", "hall", "", {}});
+    FAIL() << "a device without capabilities was accepted";
+  } catch (const df::RegistrationRefused& e) {
+    EXPECT_EQ(e.device(), "lamp");
+    EXPECT_EQ(e.reason(), "the device declares no capabilities");
+  }
+  // An unknown interface still becomes a (generic) service, discoverable by its interface id.
+  registry.register_device(
+      df::DeviceInfo{"fridge", "Fridge", "kitchen", "", {df::CapabilityInfo{"cool", "acme::Fridge", "/f"}}});
+  EXPECT_EQ(container_.find(ServiceQuery::of_type("acme::Fridge").in_room("kitchen")).size(), 1u);
+  EXPECT_EQ(registry.devices(), std::vector<std::string>{"fridge"});
+}
+
+}  // namespace
+}  // namespace icars::service
