@@ -248,5 +248,25 @@ TEST(House, ErrorsNameTheSourceGivenToParse) {
   EXPECT_THROW(parse_house("<house name=\"norooms\"/>", "x"), HouseError);   // no room
 }
 
+TEST(House, TheExampleInTheFormatDocumentLoads) {
+  std::ifstream in(std::filesystem::path(ICARS_DOCS_DIR) / "house.md");
+  ASSERT_TRUE(in);
+  std::stringstream text;
+  text << in.rdbuf();
+  const auto doc = text.str();
+  const auto begin = doc.find("```xml\n");
+  ASSERT_NE(begin, std::string::npos);
+  const auto end = doc.find("```", begin + 7);
+  const auto house = parse_house(doc.substr(begin + 7, end - begin - 7), "docs/house.md");
+  EXPECT_EQ(house.name, "flat");
+  EXPECT_EQ(house.rooms.size(), 2u);
+  EXPECT_EQ(house.users.at(0).schedule.size(), 5u);
+  // The kitchen's centre is under the table: the room is located by the free spot nearest it.
+  const auto kitchen = house.locate("kitchen");
+  ASSERT_TRUE(kitchen);
+  EXPECT_FALSE(house.find_furniture("table")->area.contains(*kitchen));
+  EXPECT_EQ(house.room_at(*kitchen)->name, "kitchen");
+}
+
 }  // namespace
 }  // namespace icars::sim

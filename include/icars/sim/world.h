@@ -1,0 +1,104 @@
+// The simulated house running on a SimClock: robots that drive along planned paths, users who
+// live their daily schedule (walking from room to room, sitting, lying down, speaking), and
+// the positions of every device.
+//
+// Simulated devices (ICARS section 5: TV, lights, occupancy sensors, the robot's wheels,
+// microphone, speaker and camera) are built on this: a wheel base calls move_robot(), a
+// microphone listens to on_utterance() and keeps what is loud enough at its device_pose(), a
+// bed sensor watches occupied("bed") through on_user(). All methods are thread-safe.
+// Listeners and `done` callbacks are always called on the thread that advances the clock,
+// from a clock event, with no World lock held — so they may call back into the World —
+// and never inside the call that caused them.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "icars/sim/clock.h"
+#include "icars/sim/house.h"
+
+namespace icars::sim {
+
+struct Utterance {
+  std::string user, text, room;
+  Point at;
+  SimTime time{0};
+  double loudness_db = 60.0;  // at 1 m from the speaker
+};
+
+enum class Posture { standing, walking, sitting, lying };
+std::string_view to_string(Posture posture);
+
+struct UserState {
+  std::string user, room;
+  std::string furniture;  // sat or lying on, or ""
+  Point at;
+  Posture posture = Posture::standing;
+  friend bool operator==(const UserState&, const UserState&) = default;
+};
+
+struct WorldOptions {
+  SimTime report_every{500};    // pose reports while a robot moves
+  double snap_distance = 1.5;   // m: a blocked move target is replaced by the nearest free spot
+};
+
+class World {
+ public:
+  // Places robots and users at their start and schedules the users' activities from
+  // max(clock.now(), house.start_time) on (construct the clock at house.start_time). Each
+  // activity is shifted by a seed-driven jitter of up to the user's time_jitter and each
+  // utterance's loudness by up to loudness_jitter_db: the same house and seed give the same
+  // run. Activities run one after another: one due while the user is still walking starts on
+  // arrival.
+  World(House house, SimClock& clock, WorldOptions options = {});
+  ~World();  // cancels the World's pending events; do not destroy while the clock advances
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+
+  const House& house() const;
+  SimClock& clock();
+
+  // Unknown robot, user or device ids throw std::invalid_argument.
+  Pose robot_pose(const std::string& robot) const;  // exact at clock().now(), also mid-motion
+  std::string robot_room(const std::string& robot) const;  // "" in a doorway outside rooms
+  bool robot_moving(const std::string& robot) const;
+
+  // Plans from the robot's pose to `target` and drives along the path at the robot's speed,
+  // reporting the pose to pose listeners when it starts (moving), every report_every, and on
+  // arrival (not moving). A target inside an obstacle (a user on the sofa) is replaced by
+  // the nearest free reachable spot within snap_distance. Returns the path, or nullopt (and no
+  // motion, no `done`) when unreachable. Otherwise `done` runs exactly once: true on arrival,
+  // false if stop_robot() or a later move_robot() ends this motion first.
+  std::optional<std::vector<Point>> move_robot(const std::string& robot, Point target,
+                                               std::function<void(bool arrived)> done = {});
+  // Stops where the robot is now; pose listeners then hear it stopped. No-op when not moving.
+  void stop_robot(const std::string& robot);
+  std::uint64_t on_robot_pose(
+      std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn);
+
+  UserState user(const std::string& user) const;  // position exact at clock().now()
+  // Called when a user's room, posture or furniture changes (not for every step of a walk).
+  std::uint64_t on_user(std::function<void(const UserState&)> fn);
+  std::uint64_t on_utterance(std::function<void(const Utterance&)> fn);
+  // An utterance by `user` now, at the user's position and nominal loudness (tests, demos);
+  // listeners hear it from a clock event at the current time (advance_by(0) delivers it).
+  void say(const std::string& user, const std::string& text);
+
+  bool occupied(const std::string& furniture) const;  // someone sits or lies on it
+  Pose device_pose(const std::string& device) const;  // carried devices move with the robot
+  // Level in dB of an utterance heard at `at`: its loudness minus 20 log10(distance / 1 m)
+  // (distance at least 1 m), minus 10 dB for every wall between (open doors do not count).
+  double sound_level(const Utterance& utterance, Point at) const;
+
+  void remove_listener(std::uint64_t id);  // a listener may still run once if already started
+
+ private:
+  struct Impl;
+  std::shared_ptr<Impl> impl_;
+};
+
+}  // namespace icars::sim

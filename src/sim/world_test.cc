@@ -1,0 +1,383 @@
+// The simulated house in motion: robots drive along planned paths in simulated time, the
+// paper house's user lives the schedule (utterances, room changes, postures), runs are
+// deterministic for a seed, and listeners may call back into the World.
+#include "icars/sim/world.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <fmt/format.h>
+#include <thread>
+
+#include "icars/sim/planner.h"
+
+namespace icars::sim {
+namespace {
+
+using namespace std::chrono_literals;
+
+const std::filesystem::path kPaperHouse =
+    std::filesystem::path(ICARS_HOUSES_DIR) / "paper_house.xml";
+
+House paper_house() { return load_house(kPaperHouse); }
+
+struct PoseEvent {
+  SimTime time;
+  Pose pose;
+  bool moving;
+};
+
+TEST(World, RobotReachesAWaypointInTheOtherRoomInPathTime) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  const OccupancyGrid grid(house, house.robot("robot1")->radius);
+  std::vector<PoseEvent> poses;
+  world.on_robot_pose([&](const std::string& robot, const Pose& pose, bool moving) {
+    EXPECT_EQ(robot, "robot1");
+    poses.push_back({clock.now(), pose, moving});
+  });
+  EXPECT_EQ(world.robot_room("robot1"), "living_room");
+  const auto target = *house.locate("bedroom_window");
+  std::optional<SimTime> arrived_at;
+  std::optional<bool> result;
+  const auto start = clock.now();
+  const auto path = world.move_robot("robot1", target, [&](bool arrived) {
+    result = arrived;
+    arrived_at = clock.now();
+  });
+  ASSERT_TRUE(path);
+  EXPECT_FALSE(result);  // never inside the call
+  EXPECT_TRUE(world.robot_moving("robot1"));
+  const double expected_s = path_length(*path) / house.robot("robot1")->speed;
+  EXPECT_GT(expected_s, 8.0);  // it is a real trip, through the door
+
+  while (!result && clock.now() < start + 1min) clock.advance_by(1s);
+  ASSERT_TRUE(result);
+  EXPECT_TRUE(*result);
+  const double took_s = std::chrono::duration<double>(*arrived_at - start).count();
+  EXPECT_NEAR(took_s, expected_s, 0.002);
+  EXPECT_FALSE(world.robot_moving("robot1"));
+  EXPECT_EQ(world.robot_room("robot1"), "bedroom");
+  EXPECT_NEAR(world.robot_pose("robot1").x, target.x, 1e-9);
+  EXPECT_NEAR(world.robot_pose("robot1").y, target.y, 1e-9);
+
+  // Reports: at the start, every 500 ms while moving, and a last one (not moving) on arrival;
+  // every reported position is free space, and the robot never jumps.
+  ASSERT_GE(poses.size(), static_cast<std::size_t>(expected_s / 0.5));
+  EXPECT_EQ(poses.front().time, start);
+  for (std::size_t i = 0; i + 1 < poses.size(); ++i) {
+    EXPECT_TRUE(poses[i].moving);
+    EXPECT_EQ(poses[i].time, start + SimTime(500) * static_cast<int>(i));
+  }
+  EXPECT_FALSE(poses.back().moving);
+  EXPECT_EQ(poses.back().time, *arrived_at);
+  bool saw_bedroom = false;
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    const auto p = poses[i].pose.position();
+    EXPECT_TRUE(grid.free(p)) << "pose " << i << " at (" << p.x << ", " << p.y << ")";
+    if (i > 0) {
+      EXPECT_LE(distance(p, poses[i - 1].pose.position()), 0.5 * 0.5 + 1e-9);
+    }
+    saw_bedroom |= house.room_at(p)->name == "bedroom" && p.x > 6.1;
+  }
+  EXPECT_TRUE(saw_bedroom);
+  // Carried devices move with the robot; static ones stay.
+  EXPECT_EQ(world.device_pose("robot1_mic"), world.robot_pose("robot1"));
+  EXPECT_EQ(world.device_pose("tv"), house.device("tv")->pose);
+}
+
+TEST(World, RobotPoseIsExactMidMotion) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  const auto path = world.move_robot("robot1", *house.locate("entrance"));
+  ASSERT_TRUE(path);
+  clock.advance_by(3s);
+  const auto expected = point_along(*path, 1.5);  // 3 s at 0.5 m/s
+  const auto pose = world.robot_pose("robot1");
+  EXPECT_NEAR(pose.x, expected.x, 1e-9);
+  EXPECT_NEAR(pose.y, expected.y, 1e-9);
+  EXPECT_NEAR(pose.theta, expected.theta, 1e-9);
+}
+
+TEST(World, StopAndSupersedeEndAMotionWithDoneFalse) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<std::string> log;
+  std::vector<bool> stops;
+  world.on_robot_pose([&](const std::string&, const Pose&, bool moving) {
+    if (!moving) stops.push_back(moving);
+  });
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("bedroom_center"),
+                               [&](bool ok) { log.push_back(ok ? "a:arrived" : "a:ended"); }));
+  clock.advance_by(2s);
+  const auto at = world.robot_pose("robot1");
+  world.stop_robot("robot1");
+  EXPECT_FALSE(world.robot_moving("robot1"));
+  EXPECT_TRUE(log.empty());  // delivered from the clock
+  clock.advance_by(0s);
+  EXPECT_EQ(log, (std::vector<std::string>{"a:ended"}));
+  EXPECT_EQ(stops.size(), 1u);
+  clock.advance_by(30s);
+  EXPECT_EQ(world.robot_pose("robot1"), at);  // stays stopped
+  world.stop_robot("robot1");                 // no-op when not moving
+  clock.advance_by(1s);
+  EXPECT_EQ(stops.size(), 1u);
+
+  // A new move supersedes the running one.
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("entrance"),
+                               [&](bool ok) { log.push_back(ok ? "b:arrived" : "b:ended"); }));
+  clock.advance_by(1s);
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("kitchen_corner"),
+                               [&](bool ok) { log.push_back(ok ? "c:arrived" : "c:ended"); }));
+  clock.advance_by(1min);
+  EXPECT_EQ(log, (std::vector<std::string>{"a:ended", "b:ended", "c:arrived"}));
+  EXPECT_LT(distance(world.robot_pose("robot1").position(), *house.locate("kitchen_corner")), 1e-9);
+}
+
+TEST(World, UnreachableOrBlockedTargets) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  bool called = false;
+  EXPECT_FALSE(world.move_robot("robot1", {30, 30}, [&](bool) { called = true; }));
+  clock.advance_by(10s);
+  EXPECT_FALSE(called);
+  EXPECT_FALSE(world.robot_moving("robot1"));
+  // A target on the sofa (where the user sits) means "next to the sofa".
+  const auto sofa = house.find_furniture("sofa")->area.center();
+  const auto path = world.move_robot("robot1", sofa, [&](bool ok) { called = ok; });
+  ASSERT_TRUE(path);
+  EXPECT_LT(distance(path->back(), sofa), 1.5);
+  clock.advance_by(1min);
+  EXPECT_TRUE(called);
+  EXPECT_THROW(world.move_robot("robot9", {1, 1}), std::invalid_argument);
+  EXPECT_THROW((void)world.robot_pose("robot9"), std::invalid_argument);
+  EXPECT_THROW((void)world.user("nobody"), std::invalid_argument);
+  EXPECT_THROW((void)world.device_pose("nothing"), std::invalid_argument);
+}
+
+// What the paper house's user does in a day, as a listener sees it.
+struct Trace {
+  std::vector<std::pair<SimTime, UserState>> states;
+  std::vector<Utterance> utterances;
+  std::vector<std::string> lines;  // everything, formatted, for comparing runs
+};
+
+Trace run_day(House house, SimTime until, std::function<void(World&, const Utterance&)> check = {}) {
+  SimClock clock(house.start_time);
+  World world(std::move(house), clock);
+  Trace trace;
+  world.on_user([&](const UserState& s) {
+    trace.states.emplace_back(clock.now(), s);
+    trace.lines.push_back(fmt::format("{} {} {} {} {} {:.3f} {:.3f}", format_time(clock.now()),
+                                      s.user, s.room, to_string(s.posture), s.furniture, s.at.x,
+                                      s.at.y));
+  });
+  world.on_utterance([&](const Utterance& u) {
+    trace.utterances.push_back(u);
+    trace.lines.push_back(fmt::format("{} {} says \"{}\" in {} at {:.3f} dB",
+                                      format_time(u.time), u.user, u.text, u.room,
+                                      u.loudness_db));
+    if (check) check(world, u);
+  });
+  clock.advance_to(until);
+  return trace;
+}
+
+TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
+  const auto house = paper_house();
+  const auto jitter = house.users[0].time_jitter;
+  int checked = 0;
+  const auto trace = run_day(house, at_time(1, 9, 0), [&](World& world, const Utterance& u) {
+    // Listeners may call back into the World: the user is on the sofa as they speak.
+    const auto state = world.user(u.user);
+    EXPECT_EQ(state.furniture, "sofa");
+    EXPECT_EQ(state.posture, Posture::sitting);
+    EXPECT_TRUE(world.occupied("sofa"));
+    EXPECT_FALSE(world.occupied("bed"));
+    EXPECT_EQ(u.at, state.at);
+    ++checked;
+  });
+
+  // The five voice commands, in order, each at its time (± jitter), from the sofa.
+  const std::vector<std::pair<std::string, SimTime>> said = {
+      {"turn on the TV", at_time(0, 18, 12)}, {"channel 5", at_time(0, 18, 15)},
+      {"volume up", at_time(0, 18, 20)},      {"play music", at_time(0, 19, 0)},
+      {"stop", at_time(0, 19, 30)}};
+  ASSERT_EQ(trace.utterances.size(), said.size());
+  EXPECT_EQ(checked, 5);
+  const auto sofa = house.find_furniture("sofa")->area.center();
+  for (std::size_t i = 0; i < said.size(); ++i) {
+    const auto& u = trace.utterances[i];
+    EXPECT_EQ(u.user, "user1");
+    EXPECT_EQ(u.text, said[i].first);
+    EXPECT_EQ(u.room, "living_room");
+    EXPECT_EQ(u.at, sofa);
+    EXPECT_GE(u.time, said[i].second - jitter) << u.text;
+    EXPECT_LE(u.time, said[i].second + jitter) << u.text;
+    EXPECT_NEAR(u.loudness_db, 60.0, 3.0);
+  }
+
+  // Room changes and postures, each in its window.
+  const auto first = [&](SimTime from, auto pred) -> std::optional<std::pair<SimTime, UserState>> {
+    for (const auto& e : trace.states) {
+      if (e.first >= from && pred(e.second)) return e;
+    }
+    return std::nullopt;
+  };
+  const auto sits = first(at_time(0, 18, 0), [](const UserState& s) {
+    return s.posture == Posture::sitting && s.furniture == "sofa";
+  });
+  ASSERT_TRUE(sits);
+  EXPECT_GE(sits->first, at_time(0, 18, 10) - jitter);
+  EXPECT_LE(sits->first, at_time(0, 18, 10) + jitter + 15s);  // plus the walk to the sofa
+  EXPECT_EQ(sits->second.at, sofa);
+
+  const auto to_bedroom = first(at_time(0, 18, 0), [](const UserState& s) {
+    return s.room == "bedroom";
+  });
+  ASSERT_TRUE(to_bedroom);
+  EXPECT_GE(to_bedroom->first, at_time(0, 22, 0) - jitter);
+  EXPECT_LE(to_bedroom->first, at_time(0, 22, 0) + jitter + 15s);
+  EXPECT_EQ(to_bedroom->second.posture, Posture::walking);
+  EXPECT_GT(to_bedroom->second.at.x, 6.0);  // just through the door
+
+  const auto lies = first(at_time(0, 18, 0), [](const UserState& s) {
+    return s.posture == Posture::lying;
+  });
+  ASSERT_TRUE(lies);
+  EXPECT_EQ(lies->second.furniture, "bed");
+  EXPECT_EQ(lies->second.room, "bedroom");
+  EXPECT_GE(lies->first, at_time(0, 22, 30) - jitter);
+  EXPECT_LE(lies->first, at_time(0, 22, 30) + jitter + 15s);
+
+  // Next morning: up at 7, into the living room for breakfast.
+  const auto up = first(at_time(1, 0, 0), [](const UserState& s) {
+    return s.posture == Posture::standing;
+  });
+  ASSERT_TRUE(up);
+  EXPECT_EQ(up->second.room, "bedroom");
+  EXPECT_EQ(up->second.furniture, "");
+  EXPECT_GE(up->first, at_time(1, 7, 0) - jitter);
+  EXPECT_LE(up->first, at_time(1, 7, 0) + jitter);
+  const auto breakfast = first(at_time(1, 0, 0), [](const UserState& s) {
+    return s.posture == Posture::sitting && s.furniture == "dining_table";
+  });
+  ASSERT_TRUE(breakfast);
+  EXPECT_EQ(breakfast->second.room, "living_room");
+  // Nothing is said on the morning of day 1 and nothing happens before 18:00 on day 0.
+  EXPECT_GE(trace.states.front().first, at_time(0, 18, 5) - jitter);
+}
+
+TEST(World, PostureAndRoomFollowTheUserThroughTheEvening) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  EXPECT_EQ(world.user("user1").room, "living_room");
+  EXPECT_EQ(world.user("user1").posture, Posture::standing);
+  EXPECT_EQ(world.user("user1").at, house.users[0].start);
+  clock.advance_to(at_time(0, 18, 14));
+  EXPECT_TRUE(world.occupied("sofa"));
+  EXPECT_EQ(world.user("user1").posture, Posture::sitting);
+  clock.advance_to(at_time(0, 21, 0));
+  EXPECT_TRUE(world.occupied("sofa"));  // back on the sofa after dinner
+  clock.advance_to(at_time(0, 22, 10));
+  EXPECT_FALSE(world.occupied("sofa"));
+  EXPECT_EQ(world.user("user1").room, "bedroom");
+  EXPECT_EQ(world.user("user1").posture, Posture::standing);
+  clock.advance_to(at_time(0, 23, 0));
+  EXPECT_TRUE(world.occupied("bed"));
+  EXPECT_EQ(world.user("user1").posture, Posture::lying);
+  EXPECT_EQ(world.user("user1").at, house.find_furniture("bed")->area.center());
+}
+
+TEST(World, SameSeedSameRunDifferentSeedDifferentRun) {
+  auto house = paper_house();
+  const auto a = run_day(house, at_time(1, 9, 0));
+  const auto b = run_day(house, at_time(1, 9, 0));
+  ASSERT_GT(a.lines.size(), 20u);
+  EXPECT_EQ(a.lines, b.lines);
+  house.seed = 43;
+  const auto c = run_day(house, at_time(1, 9, 0));
+  EXPECT_NE(a.lines, c.lines);
+  EXPECT_EQ(a.utterances.size(), c.utterances.size());  // same schedule, other timing
+  EXPECT_NE(a.utterances[0].time, c.utterances[0].time);
+}
+
+TEST(World, SayIsHeardAtTheUsersPositionFromTheClock) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<Utterance> heard;
+  const auto id = world.on_utterance([&](const Utterance& u) { heard.push_back(u); });
+  world.say("user1", "hello robot");
+  EXPECT_TRUE(heard.empty());
+  clock.advance_by(0s);
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].text, "hello robot");
+  EXPECT_EQ(heard[0].room, "living_room");
+  EXPECT_EQ(heard[0].at, house.users[0].start);
+  EXPECT_EQ(heard[0].time, house.start_time);
+  EXPECT_DOUBLE_EQ(heard[0].loudness_db, 60.0);
+  world.remove_listener(id);
+  world.say("user1", "anyone?");
+  clock.advance_by(1s);
+  EXPECT_EQ(heard.size(), 1u);
+}
+
+TEST(World, SoundFadesWithDistanceAndWalls) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  Utterance u{"user1", "hi", "living_room", {3, 1}, SimTime{0}, 60};
+  EXPECT_DOUBLE_EQ(world.sound_level(u, {3, 1.5}), 60.0);  // within a metre
+  EXPECT_NEAR(world.sound_level(u, {5, 1}), 60.0 - 20 * std::log10(2.0), 1e-9);
+  // Through the wall between the rooms: 10 dB less than the same distance in the open...
+  EXPECT_NEAR(world.sound_level(u, {7, 1}), 60.0 - 20 * std::log10(4.0) - 10, 1e-9);
+  // ...but not through the open door.
+  Utterance near_door{"user1", "hi", "living_room", {5, 2.5}, SimTime{0}, 60};
+  EXPECT_NEAR(world.sound_level(near_door, {7, 2.5}), 60.0 - 20 * std::log10(2.0), 1e-9);
+}
+
+TEST(World, RunsUnderARealTimeDriver) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::atomic<bool> done{false};
+  std::atomic<bool> on_driver_thread{false};
+  const auto test_thread = std::this_thread::get_id();
+  RealTimeDriver driver(clock, 1000.0, 50ms);
+  driver.start();
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("bed_side"), [&](bool ok) {
+    on_driver_thread = std::this_thread::get_id() != test_thread;
+    done = ok;
+  }));
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (!done && std::chrono::steady_clock::now() < deadline) {
+    (void)world.robot_pose("robot1");  // concurrent reads while the driver advances
+    std::this_thread::sleep_for(1ms);
+  }
+  driver.stop();
+  EXPECT_TRUE(done);
+  EXPECT_TRUE(on_driver_thread);
+  EXPECT_EQ(world.robot_room("robot1"), "bedroom");
+}
+
+TEST(World, DestroyingTheWorldCancelsItsEvents) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  {
+    World world(house, clock);
+    world.move_robot("robot1", *house.locate("bed_side"));
+    EXPECT_GT(clock.pending(), 0u);
+  }
+  EXPECT_EQ(clock.pending(), 0u);
+  clock.advance_by(24h);  // nothing left to run
+}
+
+}  // namespace
+}  // namespace icars::sim
