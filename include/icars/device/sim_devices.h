@@ -1,0 +1,60 @@
+// Simulated devices of the house (ICARS paper 5.1, Table 3), built on the simulated world
+// (icars::sim): a device provider's implementations of the capability interfaces of
+// idl/home.idl for devices that exist only in simulation. They are ordinary DF devices: a
+// DeviceManager serves and registers them exactly as it would real ones.
+//
+// Device types (the `type` of a <device> in the house file) and their capabilities:
+//   TV            tv_control     home::TVControl
+//   Light         light          home::Light
+//   Speaker       speaker        home::Speaker
+//   Microphone    sound_sensor   home::Microphone        (sound events with speech audio)
+//   Wheels        wheels         home::Wheels            (go_to, position events)
+//   Camera        camera         home::Camera            (a "sim/scene" image)
+//   MotionSensor  motion         home::MotionSensor      (param room: the room it watches)
+//   BedOccupancy, SofaOccupancy, Occupancy
+//                 occupancy      home::OccupancySensor   (param furniture)
+//   Clock         clock          home::Clock
+//   SpeechEngine  speech_recognizer  home::SpeechRecognizer (a software device)
+//   VisionEngine  face_recognizer    home::FaceRecognizer   (a software device)
+// and the pseudo-device "simulator" (Simulation) through which tests and demos drive the world.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "icars/device/device.h"
+#include "icars/planet/communicator.h"
+#include "icars/sim/clock.h"
+#include "icars/sim/world.h"
+
+namespace icars::device {
+
+// Simulated speech audio: what a simulated microphone records when someone speaks, 16 kHz
+// 16-bit PCM whose first samples carry the words, so a simulated recognizer can "hear" them.
+struct SimulatedSpeech {
+  static planet::Binary encode(const std::string& text, double level_db);
+  // The words and level, or nullopt when the audio holds no simulated speech.
+  struct Decoded {
+    std::string text;
+    double level_db = 0;
+  };
+  static std::optional<Decoded> decode(const planet::Binary& audio);
+};
+
+// Everything a simulated device needs: the world and the communicator that serves the device
+// (for streams).
+struct SimContext {
+  sim::World& world;
+  planet::Communicator& communicator;
+};
+
+// The device for a device of the house; throws std::invalid_argument for an unknown type.
+std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context);
+// The software devices every simulated house gets: a speech engine and a vision engine.
+std::vector<std::shared_ptr<Device>> make_sim_engines(SimContext context);
+// The pseudo-device "simulator" with its Simulation capability.
+std::shared_ptr<Device> make_simulator_device(SimContext context);
+
+}  // namespace icars::device
