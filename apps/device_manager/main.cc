@@ -13,9 +13,7 @@
 #include <set>
 #include <thread>
 
-#include "icars/device/device_manager.h"
-#include "icars/device/sim_devices.h"
-#include "icars/sim/house.h"
+#include "icars/device/simulated_house.h"
 
 namespace {
 
@@ -64,33 +62,23 @@ int main(int argc, char** argv) {
   }
   const auto [host, port] = split_endpoint(server);
 
-  icars::sim::SimClock clock(house.start_time);
-  icars::sim::World world(house, clock);
-  icars::planet::CommunicatorOptions options;
-  options.name = "device-manager";
+  icars::device::SimulatedHouseOptions options;
+  options.speedup = speedup;
+  options.devices = std::set<std::string>(only.begin(), only.end());
+  options.engines = engines;
+  options.simulator = simulator;
   options.pun = pun;
-  icars::planet::Communicator communicator(options);
-  icars::device::DeviceManager manager(communicator);
-  const icars::device::SimContext context{world, communicator};
+  std::unique_ptr<icars::device::SimulatedHouse> simulation;
   try {
-    const std::set<std::string> wanted(only.begin(), only.end());
-    for (const auto& spec : world.house().devices) {
-      if (wanted.empty() || wanted.contains(spec.id)) manager.add(icars::device::make_sim_device(spec, context));
-    }
-    if (engines) {
-      for (auto& d : icars::device::make_sim_engines(context)) manager.add(d);
-    }
-    if (simulator) manager.add(icars::device::make_simulator_device(context));
+    simulation = std::make_unique<icars::device::SimulatedHouse>(std::move(house), options);
   } catch (const std::exception& e) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";
     return 2;
   }
-
-  icars::sim::RealTimeDriver driver(clock, speedup);
-  driver.start();
-  manager.connect(host, port);
+  auto& manager = simulation->manager();
+  simulation->start(host, port);
   std::cout << "STARTED " << manager.devices().size() << " devices, simulated time "
-            << icars::sim::format_time(clock.now()) << std::endl;
+            << icars::sim::format_time(simulation->clock().now()) << std::endl;
 
   // Report registration rounds until a stop signal arrives.
   std::atomic<bool> stopping{false};
@@ -107,6 +95,5 @@ int main(int argc, char** argv) {
   sigwait(&signals, &sig);
   stopping = true;
   reporter.join();
-  driver.stop();
   return 0;
 }

@@ -1,0 +1,56 @@
+// A simulated house as a device manager: the world of a house file running on its clock at a
+// chosen speed-up, every device of the house (plus the speech and vision engines and the
+// Simulation control device) served on its own PLANET communicator and registered with the
+// mediating server. Used by icars-device-manager and by `icars` in its one-process mode.
+#pragma once
+
+#include <memory>
+#include <set>
+#include <string>
+
+#include "icars/device/device_manager.h"
+#include "icars/device/sim_devices.h"
+#include "icars/sim/clock.h"
+#include "icars/sim/house.h"
+#include "icars/sim/world.h"
+
+namespace spdlog {
+class logger;
+}
+
+namespace icars::device {
+
+struct SimulatedHouseOptions {
+  double speedup = 1.0;           // simulated seconds per wall-clock second
+  std::set<std::string> devices;  // host only these device ids; empty: all
+  bool engines = true;            // host the speech and vision engines
+  bool simulator = true;          // host the Simulation control device
+  std::string pun;                // the device manager's PLANET name
+  std::shared_ptr<spdlog::logger> logger;  // the device communicator's; default: stderr, info
+};
+
+class SimulatedHouse {
+ public:
+  // Throws std::invalid_argument for a device the simulation cannot implement.
+  SimulatedHouse(sim::House house, SimulatedHouseOptions options);
+  ~SimulatedHouse();  // stops the clock first, so no world event runs during teardown
+
+  // Starts the clock and connects to the server (registering every device, again after every
+  // reconnection).
+  void start(const std::string& host, std::uint16_t port);
+
+  sim::World& world() { return *world_; }
+  sim::SimClock& clock() { return clock_; }
+  DeviceManager& manager() { return *manager_; }
+  planet::Communicator& communicator() { return *communicator_; }
+
+ private:
+  SimulatedHouseOptions options_;
+  sim::SimClock clock_;
+  std::unique_ptr<sim::World> world_;
+  std::unique_ptr<planet::Communicator> communicator_;
+  std::unique_ptr<DeviceManager> manager_;
+  std::unique_ptr<sim::RealTimeDriver> driver_;
+};
+
+}  // namespace icars::device
