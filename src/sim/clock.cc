@@ -132,9 +132,8 @@ bool RealTimeDriver::running() const {
 void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, SimTime sim_start) {
   using namespace std::chrono;
   const auto wall_for = [&](SimTime sim) {
-    return wall_start +
-           duration_cast<steady_clock::duration>(duration<double, std::milli>(
-               static_cast<double>((sim - sim_start).count()) / speedup_));
+    return wall_start + duration_cast<steady_clock::duration>(duration<double, std::milli>(
+                            static_cast<double>((sim - sim_start).count()) / speedup_));
   };
   SimTime next = sim_start + tick_;
   for (;;) {
@@ -144,8 +143,8 @@ void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, SimTi
     }
     // Catch up in one advance if events ran slower than real time.
     const auto elapsed = duration<double, std::milli>(steady_clock::now() - wall_start).count();
-    const auto ticks = static_cast<std::int64_t>(elapsed * speedup_ /
-                                                 static_cast<double>(tick_.count()));
+    const auto ticks =
+        static_cast<std::int64_t>(elapsed * speedup_ / static_cast<double>(tick_.count()));
     const SimTime target = std::max(next, sim_start + tick_ * ticks);
     clock_.advance_to(target);
     next = target + tick_;

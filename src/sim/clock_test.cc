@@ -110,7 +110,8 @@ TEST(SimClock, EventsMayScheduleAndCancelEvents) {
   std::uint64_t doomed = 0;
   clock.schedule_at(10ms, [&] {
     log.push_back("first@" + std::to_string(clock.now().count()));
-    clock.schedule_after(5ms, [&] { log.push_back("child@" + std::to_string(clock.now().count())); });
+    clock.schedule_after(5ms,
+                         [&] { log.push_back("child@" + std::to_string(clock.now().count())); });
     clock.schedule_after(0ms, [&] { log.push_back("now@" + std::to_string(clock.now().count())); });
     clock.schedule_after(500ms, [&] { log.push_back("too late"); });
     EXPECT_TRUE(clock.cancel(doomed));
@@ -232,7 +233,7 @@ TEST(RealTimeDriver, RestartsFromTheCurrentTimeAndStopsOnDestruction) {
     driver.start();  // no-op
     ASSERT_TRUE(wait_for([&] { return clock.now() >= SimTime(2s); }));
     driver.stop();
-    driver.stop();  // no-op
+    driver.stop();         // no-op
     clock.advance_by(1h);  // the clock is ours again
     const auto resumed_from = clock.now();
     driver.start();

@@ -26,11 +26,16 @@ Point Rect::center() const { return {(min.x + max.x) / 2, (min.y + max.y) / 2}; 
 
 std::string_view to_string(Activity activity) {
   switch (activity) {
-    case Activity::go_to: return "go_to";
-    case Activity::sit: return "sit";
-    case Activity::lie: return "lie";
-    case Activity::stand: return "stand";
-    case Activity::say: return "say";
+    case Activity::go_to:
+      return "go_to";
+    case Activity::sit:
+      return "sit";
+    case Activity::lie:
+      return "lie";
+    case Activity::stand:
+      return "stand";
+    case Activity::say:
+      return "say";
   }
   return "?";
 }
@@ -175,15 +180,14 @@ class Parser {
   void check_children(pugi::xml_node n, const std::vector<std::string>& allowed) const {
     for (auto c : n.children()) {
       if (c.type() == pugi::node_pcdata || c.type() == pugi::node_cdata) {
-        fail(line(c), fmt::format("unexpected text \"{}\" in {}, expected {}", c.value(),
-                                  describe(n),
-                                  allowed.empty() ? std::string("no content")
-                                                  : "elements " + join(allowed)));
+        fail(
+            line(c),
+            fmt::format("unexpected text \"{}\" in {}, expected {}", c.value(), describe(n),
+                        allowed.empty() ? std::string("no content") : "elements " + join(allowed)));
       }
       if (c.type() != pugi::node_element) continue;
       if (std::find(allowed.begin(), allowed.end(), c.name()) == allowed.end()) {
-        fail(line(c), fmt::format("unknown element <{}> in {}, expected {}", c.name(),
-                                  describe(n),
+        fail(line(c), fmt::format("unknown element <{}> in {}, expected {}", c.name(), describe(n),
                                   allowed.empty() ? std::string("no child elements")
                                                   : "one of: " + join(allowed)));
       }
@@ -217,8 +221,8 @@ class Parser {
     const auto a = n.attribute(key);
     if (!a) {
       if (fallback) return *fallback;
-      fail(line(n), fmt::format("{} is missing attribute \"{}\" (a number in {})", describe(n),
-                                key, unit));
+      fail(line(n),
+           fmt::format("{} is missing attribute \"{}\" (a number in {})", describe(n), key, unit));
     }
     const std::string_view text = a.value();
     double value = 0;
@@ -256,9 +260,8 @@ class Parser {
     const std::string_view v = a.value();
     if (v == "true") return true;
     if (v == "false") return false;
-    fail(line(n),
-         fmt::format("{}=\"{}\" of {} is not a boolean, expected true or false", key, v,
-                     describe(n)));
+    fail(line(n), fmt::format("{}=\"{}\" of {} is not a boolean, expected true or false", key, v,
+                              describe(n)));
   }
 
   SimTime time_of_day(pugi::xml_node n, const char* key, std::optional<SimTime> fallback) const {
@@ -270,9 +273,10 @@ class Parser {
     }
     const auto t = parse_time_of_day(a.value());
     if (!t) {
-      fail(line(n), fmt::format("bad time \"{}\" in attribute \"{}\" of {}, expected HH:MM or HH:MM:SS "
-                                "between 00:00 and 23:59:59",
-                                a.value(), key, describe(n)));
+      fail(line(n),
+           fmt::format("bad time \"{}\" in attribute \"{}\" of {}, expected HH:MM or HH:MM:SS "
+                       "between 00:00 and 23:59:59",
+                       a.value(), key, describe(n)));
     }
     return *t;
   }
@@ -338,8 +342,8 @@ class Parser {
 
 House Parser::parse() {
   pugi::xml_document doc;
-  const auto result = doc.load_buffer(xml_.data(), xml_.size(), pugi::parse_default,
-                                      pugi::encoding_utf8);
+  const auto result =
+      doc.load_buffer(xml_.data(), xml_.size(), pugi::parse_default, pugi::encoding_utf8);
   if (!result) {
     fail(line_at(result.offset),
          fmt::format("malformed XML: {}, expected a well-formed <house> document",
@@ -351,7 +355,8 @@ House Parser::parse() {
     fail(line(root), fmt::format("the root element is <{}>, expected <house>", root.name()));
   }
   check_attributes(root, {"name", "start", "seed", "resolution"});
-  check_children(root, {"room", "door", "wall", "furniture", "waypoint", "device", "robot", "user"});
+  check_children(root,
+                 {"room", "door", "wall", "furniture", "waypoint", "device", "robot", "user"});
 
   House house;
   lines_.house = line(root);
@@ -395,17 +400,16 @@ House Parser::parse() {
                 {number(n, "x0", std::nullopt, "metres"), number(n, "y0", std::nullopt, "metres")},
                 {number(n, "x1", std::nullopt, "metres"), number(n, "y1", std::nullopt, "metres")}};
       if (distance(door.a, door.b) < kEpsilon) {
-        fail(line(n), fmt::format("{} has zero width, expected two different end points",
-                                  describe(n)));
+        fail(line(n),
+             fmt::format("{} has zero width, expected two different end points", describe(n)));
       }
       house.doors.push_back(door);
       lines_.doors.push_back(line(n));
     } else if (kind == "wall") {
       check_attributes(n, {"x0", "y0", "x1", "y1"});
       check_children(n, {});
-      Wall wall{
-          {number(n, "x0", std::nullopt, "metres"), number(n, "y0", std::nullopt, "metres")},
-          {number(n, "x1", std::nullopt, "metres"), number(n, "y1", std::nullopt, "metres")}};
+      Wall wall{{number(n, "x0", std::nullopt, "metres"), number(n, "y0", std::nullopt, "metres")},
+                {number(n, "x1", std::nullopt, "metres"), number(n, "y1", std::nullopt, "metres")}};
       if (distance(wall.a, wall.b) < kEpsilon) {
         fail(line(n), "<wall> has zero length, expected two different end points");
       }
@@ -458,8 +462,8 @@ void Parser::parse_room(pugi::xml_node n, House& house) {
 }
 
 void Parser::parse_furniture(pugi::xml_node n, House& house) {
-  check_attributes(n, {"name", "kind", "room", "x0", "y0", "x1", "y1", "blocks", "approach_x",
-                       "approach_y"});
+  check_attributes(
+      n, {"name", "kind", "room", "x0", "y0", "x1", "y1", "blocks", "approach_x", "approach_y"});
   check_children(n, {});
   Furniture f;
   f.name = name(n, "name");
@@ -527,8 +531,8 @@ void Parser::parse_robot(pugi::xml_node n, House& house) {
 }
 
 void Parser::parse_user(pugi::xml_node n, House& house) {
-  check_attributes(n, {"id", "x", "y", "speed", "radius", "loudness", "jitter", "loudness_jitter",
-                       "repeat"});
+  check_attributes(
+      n, {"id", "x", "y", "speed", "radius", "loudness", "jitter", "loudness_jitter", "repeat"});
   check_children(n, {"go_to", "sit", "lie", "stand", "say"});
   UserSpec u;
   u.id = name(n, "id");
@@ -537,14 +541,14 @@ void Parser::parse_user(pugi::xml_node n, House& house) {
   u.speed = positive(n, "speed", 1.0, "m/s");
   u.radius = positive(n, "radius", 0.2, "metres");
   u.loudness_db = number(n, "loudness", 60.0, "dB");
-  u.time_jitter = std::chrono::milliseconds(
-      std::llround(non_negative(n, "jitter", 0.0, "seconds") * 1000.0));
+  u.time_jitter =
+      std::chrono::milliseconds(std::llround(non_negative(n, "jitter", 0.0, "seconds") * 1000.0));
   u.loudness_jitter_db = non_negative(n, "loudness_jitter", 0.0, "dB");
   if (auto repeat = n.attribute("repeat")) {
     const std::string_view v = repeat.value();
     if (v != "daily" && v != "once") {
-      fail(line(n), fmt::format("repeat=\"{}\" of {} is not known, expected daily or once", v,
-                                describe(n)));
+      fail(line(n),
+           fmt::format("repeat=\"{}\" of {} is not known, expected daily or once", v, describe(n)));
     }
     u.daily = v == "daily";
   }
@@ -559,9 +563,9 @@ void Parser::parse_user(pugi::xml_node n, House& house) {
       e.activity = kind == "go_to" ? Activity::go_to
                    : kind == "sit" ? Activity::sit
                                    : Activity::lie;
-      e.target = required(c, "target", kind == "go_to"
-                                           ? "a waypoint, a piece of furniture or a room"
-                                           : "a piece of furniture");
+      e.target = required(
+          c, "target",
+          kind == "go_to" ? "a waypoint, a piece of furniture or a room" : "a piece of furniture");
     } else if (kind == "stand") {
       check_attributes(c, {"at"});
       e.activity = Activity::stand;
@@ -639,12 +643,12 @@ std::string Parser::resolve_room(House& house, const std::string& room, Point at
     if (!r) {
       std::vector<std::string> known;
       for (const auto& k : house.rooms) known.push_back(k.name);
-      fail(at_line, fmt::format("unknown room \"{}\" for {}, expected one of: {}", room, what,
-                                join(known)));
+      fail(at_line,
+           fmt::format("unknown room \"{}\" for {}, expected one of: {}", room, what, join(known)));
     }
     if (!r->area.contains(at)) {
-      fail(at_line, fmt::format("{} at {} is not inside its room \"{}\"", what, fmt_point(at),
-                                room));
+      fail(at_line,
+           fmt::format("{} at {} is not inside its room \"{}\"", what, fmt_point(at), room));
     }
     return room;
   }
@@ -669,9 +673,9 @@ void Parser::validate(House& house) {
     f.room = resolve_room(house, f.room, f.area.center(), lines_.furniture[i], what);
     const auto& room = house.room(f.room)->area;
     if (!room.contains(f.area.min) || !room.contains(f.area.max)) {
-      fail(lines_.furniture[i], fmt::format("{} from {} to {} does not fit inside room \"{}\"",
-                                            what, fmt_point(f.area.min), fmt_point(f.area.max),
-                                            f.room));
+      fail(lines_.furniture[i],
+           fmt::format("{} from {} to {} does not fit inside room \"{}\"", what,
+                       fmt_point(f.area.min), fmt_point(f.area.max), f.room));
     }
   }
   for (std::size_t i = 0; i < house.waypoints.size(); ++i) {
@@ -734,7 +738,9 @@ void Parser::validate(House& house) {
   }
   // A spot is usable when free and reachable; when nothing reachable exists, a free spot is
   // still chosen so that the error reported later is "unreachable", not "no spot".
-  const auto free_in = [&](Point p, const Room& room) { return room.area.contains(p) && wide.free(p); };
+  const auto free_in = [&](Point p, const Room& room) {
+    return room.area.contains(p) && wide.free(p);
+  };
   const auto usable = [&](Point p, const Room& room) {
     return free_in(p, room) && (!home || wide.connected(*home, p));
   };
@@ -816,11 +822,11 @@ void Parser::validate(House& house) {
                                               w.name, fmt_point(w.at), r.id, r.radius));
       }
       if (!grid.connected(r.start.position(), w.at)) {
-        fail(lines_.waypoints[i], fmt::format("waypoint \"{}\" at {} is unreachable for robot "
-                                              "\"{}\" from its start {}, expected a spot joined "
-                                              "to it by a free path (check doors)",
-                                              w.name, fmt_point(w.at), r.id,
-                                              fmt_point(r.start.position())));
+        fail(lines_.waypoints[i],
+             fmt::format("waypoint \"{}\" at {} is unreachable for robot "
+                         "\"{}\" from its start {}, expected a spot joined "
+                         "to it by a free path (check doors)",
+                         w.name, fmt_point(w.at), r.id, fmt_point(r.start.position())));
       }
     }
   }

@@ -18,7 +18,8 @@ namespace {
 
 using namespace std::chrono_literals;
 
-const std::filesystem::path kPaperHouse = std::filesystem::path(ICARS_HOUSES_DIR) / "paper_house.xml";
+const std::filesystem::path kPaperHouse =
+    std::filesystem::path(ICARS_HOUSES_DIR) / "paper_house.xml";
 const std::filesystem::path kBad = std::filesystem::path(ICARS_SIM_TESTDATA) / "bad";
 
 House paper_house() { return load_house(kPaperHouse); }
@@ -225,9 +226,9 @@ TEST(House, EveryBrokenFixtureGivesItsDocumentedError) {
       EXPECT_EQ(std::string(e.what()).rfind(prefix, 0), 0u) << e.what();
     }
   }
-  for (const char* required : {"malformed_xml", "unknown_room", "duplicate_id",
-                               "device_outside_rooms", "bad_time", "unknown_schedule_target",
-                               "negative_speed", "missing_attribute", "unreachable_waypoint"}) {
+  for (const char* required :
+       {"malformed_xml", "unknown_room", "duplicate_id", "device_outside_rooms", "bad_time",
+        "unknown_schedule_target", "negative_speed", "missing_attribute", "unreachable_waypoint"}) {
     EXPECT_NE(std::find(seen.begin(), seen.end(), required), seen.end())
         << "missing fixture " << required;
   }
@@ -235,8 +236,9 @@ TEST(House, EveryBrokenFixtureGivesItsDocumentedError) {
 
 TEST(House, ErrorsNameTheSourceGivenToParse) {
   try {
-    parse_house("<house name=\"x\">\n<room name=\"r\" x0=\"0\" y0=\"0\" x1=\"0\" y1=\"1\"/>\n</house>",
-                "inline");
+    parse_house(
+        "<house name=\"x\">\n<room name=\"r\" x0=\"0\" y0=\"0\" x1=\"0\" y1=\"1\"/>\n</house>",
+        "inline");
     FAIL() << "expected a HouseError";
   } catch (const HouseError& e) {
     EXPECT_EQ(std::string(e.what()),

@@ -43,7 +43,9 @@ House open_room(double size) {
   House h;
   h.name = "open";
   h.rooms = {{"room", {{0, 0}, {size, size}}, std::nullopt}};
-  h.walls = {{{0, 0}, {size, 0}}, {{size, 0}, {size, size}}, {{size, size}, {0, size}},
+  h.walls = {{{0, 0}, {size, 0}},
+             {{size, 0}, {size, size}},
+             {{size, size}, {0, size}},
              {{0, size}, {0, 0}}};
   return h;
 }
@@ -114,7 +116,8 @@ TEST(Planner, UnreachableTargetsHaveNoPath) {
   // A target inside furniture is not reachable either.
   const auto house = load_house(kPaperHouse);
   const OccupancyGrid paper(house, 0.25);
-  EXPECT_FALSE(plan_path(paper, *house.locate("entrance"), house.find_furniture("sofa")->area.center()));
+  EXPECT_FALSE(
+      plan_path(paper, *house.locate("entrance"), house.find_furniture("sofa")->area.center()));
 }
 
 TEST(Planner, StraightLineOnAnOpenMap) {

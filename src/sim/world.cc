@@ -17,10 +17,14 @@ namespace icars::sim {
 
 std::string_view to_string(Posture posture) {
   switch (posture) {
-    case Posture::standing: return "standing";
-    case Posture::walking: return "walking";
-    case Posture::sitting: return "sitting";
-    case Posture::lying: return "lying";
+    case Posture::standing:
+      return "standing";
+    case Posture::walking:
+      return "walking";
+    case Posture::sitting:
+      return "sitting";
+    case Posture::lying:
+      return "lying";
   }
   return "?";
 }
@@ -54,7 +58,9 @@ std::uint64_t splitmix64(std::uint64_t x) {
 }
 
 // Orientation test for segment intersection.
-double cross(Point o, Point a, Point b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
+double cross(Point o, Point a, Point b) {
+  return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x);
+}
 
 bool segments_cross(Point p1, Point p2, Point q1, Point q2) {
   const double d1 = cross(q1, q2, p1);
@@ -109,8 +115,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     std::mt19937_64 rng;
   };
 
-  Impl(House h, SimClock& c, WorldOptions o)
-      : house(std::move(h)), clock(c), options(o) {}
+  Impl(House h, SimClock& c, WorldOptions o) : house(std::move(h)), clock(c), options(o) {}
 
   House house;
   SimClock& clock;
@@ -121,7 +126,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   std::map<std::string, Robot, std::less<>> robots;
   std::map<std::string, User, std::less<>> users;
   std::map<std::string, std::string, std::less<>> occupancy;  // furniture -> user
-  std::unordered_set<std::uint64_t> timers;                    // our pending clock events
+  std::unordered_set<std::uint64_t> timers;                   // our pending clock events
   std::uint64_t next_listener = 1;
   std::map<std::uint64_t, std::shared_ptr<PoseListener>> pose_listeners;
   std::map<std::uint64_t, std::shared_ptr<UserListener>> user_listeners;
@@ -236,9 +241,9 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     SimTime previous = std::max(day_start, not_before);
     for (const auto& entry : u.spec->schedule) {
       // Draw for every entry, scheduled or not: the draws do not depend on the start time.
-      const auto jitter = SimTime(static_cast<std::int64_t>(
-                                      u.rng() % static_cast<std::uint64_t>(2 * jitter_ms + 1)) -
-                                  jitter_ms);
+      const auto jitter = SimTime(
+          static_cast<std::int64_t>(u.rng() % static_cast<std::uint64_t>(2 * jitter_ms + 1)) -
+          jitter_ms);
       const double unit = static_cast<double>(u.rng() >> 11) * 0x1.0p-53;  // [0, 1)
       const double loudness = u.spec->loudness_db + (2 * unit - 1) * u.spec->loudness_jitter_db;
       if (day_start + entry.at < not_before) continue;
@@ -263,8 +268,8 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
       const auto& e = p.entry;
       switch (e.activity) {
         case Activity::say:
-          notes.push_back(Utterance{u.spec->id, e.text, u.state.room, u.state.at, now,
-                                    p.loudness_db});
+          notes.push_back(
+              Utterance{u.spec->id, e.text, u.state.room, u.state.at, now, p.loudness_db});
           break;
         case Activity::stand:
           get_up(u, notes, now);
@@ -409,10 +414,9 @@ std::optional<std::vector<Point>> World::move_robot(const std::string& robot, Po
     auto& r = s.robot(robot);
     const auto now = s.clock.now();
     const auto from = r.pose_at(now);
-    const auto goal =
-        s.options.snap_distance > 0
-            ? r.grid->nearest_free(target, s.options.snap_distance, from.position())
-            : std::optional<Point>(target);
+    const auto goal = s.options.snap_distance > 0
+                          ? r.grid->nearest_free(target, s.options.snap_distance, from.position())
+                          : std::optional<Point>(target);
     if (!goal) return std::nullopt;
     auto path = plan_path(*r.grid, from.position(), *goal);
     if (!path) return std::nullopt;
@@ -453,8 +457,7 @@ void World::stop_robot(const std::string& robot) {
   s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
 }
 
-std::uint64_t World::on_robot_pose(
-    std::function<void(const std::string&, const Pose&, bool)> fn) {
+std::uint64_t World::on_robot_pose(std::function<void(const std::string&, const Pose&, bool)> fn) {
   std::lock_guard lock(impl_->mutex);
   const auto id = impl_->next_listener++;
   impl_->pose_listeners.emplace(id, std::make_shared<Impl::PoseListener>(std::move(fn)));
@@ -479,8 +482,7 @@ std::uint64_t World::on_user(std::function<void(const UserState&)> fn) {
 std::uint64_t World::on_utterance(std::function<void(const Utterance&)> fn) {
   std::lock_guard lock(impl_->mutex);
   const auto id = impl_->next_listener++;
-  impl_->utterance_listeners.emplace(id,
-                                     std::make_shared<Impl::UtteranceListener>(std::move(fn)));
+  impl_->utterance_listeners.emplace(id, std::make_shared<Impl::UtteranceListener>(std::move(fn)));
   return id;
 }
 

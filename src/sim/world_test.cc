@@ -3,11 +3,11 @@
 // deterministic for a seed, and listeners may call back into the World.
 #include "icars/sim/world.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <cmath>
-#include <fmt/format.h>
 #include <thread>
 
 #include "icars/sim/planner.h"
@@ -167,7 +167,8 @@ struct Trace {
   std::vector<std::string> lines;  // everything, formatted, for comparing runs
 };
 
-Trace run_day(House house, SimTime until, std::function<void(World&, const Utterance&)> check = {}) {
+Trace run_day(House house, SimTime until,
+              std::function<void(World&, const Utterance&)> check = {}) {
   SimClock clock(house.start_time);
   World world(std::move(house), clock);
   Trace trace;
@@ -179,9 +180,8 @@ Trace run_day(House house, SimTime until, std::function<void(World&, const Utter
   });
   world.on_utterance([&](const Utterance& u) {
     trace.utterances.push_back(u);
-    trace.lines.push_back(fmt::format("{} {} says \"{}\" in {} at {:.3f} dB",
-                                      format_time(u.time), u.user, u.text, u.room,
-                                      u.loudness_db));
+    trace.lines.push_back(fmt::format("{} {} says \"{}\" in {} at {:.3f} dB", format_time(u.time),
+                                      u.user, u.text, u.room, u.loudness_db));
     if (check) check(world, u);
   });
   clock.advance_to(until);
@@ -204,10 +204,11 @@ TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
   });
 
   // The five voice commands, in order, each at its time (± jitter), from the sofa.
-  const std::vector<std::pair<std::string, SimTime>> said = {
-      {"turn on the TV", at_time(0, 18, 12)}, {"channel 5", at_time(0, 18, 15)},
-      {"volume up", at_time(0, 18, 20)},      {"play music", at_time(0, 19, 0)},
-      {"stop", at_time(0, 19, 30)}};
+  const std::vector<std::pair<std::string, SimTime>> said = {{"turn on the TV", at_time(0, 18, 12)},
+                                                             {"channel 5", at_time(0, 18, 15)},
+                                                             {"volume up", at_time(0, 18, 20)},
+                                                             {"play music", at_time(0, 19, 0)},
+                                                             {"stop", at_time(0, 19, 30)}};
   ASSERT_EQ(trace.utterances.size(), said.size());
   EXPECT_EQ(checked, 5);
   const auto sofa = house.find_furniture("sofa")->area.center();
@@ -237,18 +238,16 @@ TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
   EXPECT_LE(sits->first, at_time(0, 18, 10) + jitter + 15s);  // plus the walk to the sofa
   EXPECT_EQ(sits->second.at, sofa);
 
-  const auto to_bedroom = first(at_time(0, 18, 0), [](const UserState& s) {
-    return s.room == "bedroom";
-  });
+  const auto to_bedroom =
+      first(at_time(0, 18, 0), [](const UserState& s) { return s.room == "bedroom"; });
   ASSERT_TRUE(to_bedroom);
   EXPECT_GE(to_bedroom->first, at_time(0, 22, 0) - jitter);
   EXPECT_LE(to_bedroom->first, at_time(0, 22, 0) + jitter + 15s);
   EXPECT_EQ(to_bedroom->second.posture, Posture::walking);
   EXPECT_GT(to_bedroom->second.at.x, 6.0);  // just through the door
 
-  const auto lies = first(at_time(0, 18, 0), [](const UserState& s) {
-    return s.posture == Posture::lying;
-  });
+  const auto lies =
+      first(at_time(0, 18, 0), [](const UserState& s) { return s.posture == Posture::lying; });
   ASSERT_TRUE(lies);
   EXPECT_EQ(lies->second.furniture, "bed");
   EXPECT_EQ(lies->second.room, "bedroom");
@@ -256,9 +255,8 @@ TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
   EXPECT_LE(lies->first, at_time(0, 22, 30) + jitter + 15s);
 
   // Next morning: up at 7, into the living room for breakfast.
-  const auto up = first(at_time(1, 0, 0), [](const UserState& s) {
-    return s.posture == Posture::standing;
-  });
+  const auto up =
+      first(at_time(1, 0, 0), [](const UserState& s) { return s.posture == Posture::standing; });
   ASSERT_TRUE(up);
   EXPECT_EQ(up->second.room, "bedroom");
   EXPECT_EQ(up->second.furniture, "");

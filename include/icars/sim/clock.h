@@ -62,7 +62,7 @@ class SimClock {
   std::map<Key, std::function<void()>> queue_;
   std::unordered_map<std::uint64_t, SimTime> times_;  // id -> time, for cancel()
 
-  std::mutex advance_mutex_;         // one advancing thread at a time
+  std::mutex advance_mutex_;          // one advancing thread at a time
   std::thread::id advancing_thread_;  // guarded by mutex_
 };
 

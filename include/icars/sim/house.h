@@ -65,7 +65,7 @@ struct Door {
 struct Furniture {
   std::string name, kind, room;  // kind: sofa, bed, table, tv_stand, ... (free text)
   Rect area;
-  bool blocks = true;              // robots and users walk around it
+  bool blocks = true;             // robots and users walk around it
   std::optional<Point> approach;  // free spot beside it, where one stands to use it
 };
 
@@ -85,7 +85,7 @@ struct DeviceSpec {
 struct RobotSpec {
   std::string id;
   Pose start;
-  double speed = 0.5;   // m/s
+  double speed = 0.5;    // m/s
   double radius = 0.25;  // m, for path planning
 };
 
@@ -102,20 +102,20 @@ struct ScheduleEntry {
 struct UserSpec {
   std::string id;
   Point start;
-  double speed = 1.0;          // m/s walking
-  double radius = 0.2;         // m, for path planning
-  double loudness_db = 60.0;   // speech level at 1 m
-  SimTime time_jitter{0};      // each activity starts up to this much early or late
+  double speed = 1.0;         // m/s walking
+  double radius = 0.2;        // m, for path planning
+  double loudness_db = 60.0;  // speech level at 1 m
+  SimTime time_jitter{0};     // each activity starts up to this much early or late
   double loudness_jitter_db = 0.0;
-  bool daily = true;           // the schedule repeats every day; false: day 0 only
+  bool daily = true;                    // the schedule repeats every day; false: day 0 only
   std::vector<ScheduleEntry> schedule;  // in time order
 };
 
 struct House {
   std::string name;
-  Rect bounds;  // the rooms' bounding box
+  Rect bounds;               // the rooms' bounding box
   double resolution = 0.05;  // m per planning grid cell
-  SimTime start_time{0};    // when the simulation starts (day 0)
+  SimTime start_time{0};     // when the simulation starts (day 0)
   std::uint64_t seed = 1;
   std::vector<Room> rooms;
   std::vector<Wall> walls;  // after the doors' gaps were cut

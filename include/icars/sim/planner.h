@@ -61,8 +61,8 @@ class OccupancyGrid {
   double inflate_radius_;
   int width_ = 0;
   int height_ = 0;
-  std::vector<std::uint8_t> free_;    // 1 = free
-  std::vector<int> component_;        // -1 for blocked cells
+  std::vector<std::uint8_t> free_;  // 1 = free
+  std::vector<int> component_;      // -1 for blocked cells
 
   friend std::optional<std::vector<Point>> plan_path(const OccupancyGrid&, Point, Point);
 };

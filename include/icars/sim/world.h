@@ -42,8 +42,8 @@ struct UserState {
 };
 
 struct WorldOptions {
-  SimTime report_every{500};    // pose reports while a robot moves
-  double snap_distance = 1.5;   // m: a blocked move target is replaced by the nearest free spot
+  SimTime report_every{500};   // pose reports while a robot moves
+  double snap_distance = 1.5;  // m: a blocked move target is replaced by the nearest free spot
 };
 
 class World {
