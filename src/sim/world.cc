@@ -2,12 +2,14 @@
 
 #include <fmt/format.h>
 
+#include <atomic>
 #include <cmath>
 #include <deque>
 #include <map>
 #include <mutex>
 #include <random>
 #include <stdexcept>
+#include <thread>
 #include <unordered_set>
 #include <variant>
 
@@ -127,6 +129,8 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   std::map<std::string, User, std::less<>> users;
   std::map<std::string, std::string, std::less<>> occupancy;  // furniture -> user
   std::unordered_set<std::uint64_t> timers;                   // our pending clock events
+  std::mutex delivery_mutex;                                  // held while listeners run
+  std::atomic<std::thread::id> delivering_thread;
   std::uint64_t next_listener = 1;
   std::map<std::uint64_t, std::shared_ptr<PoseListener>> pose_listeners;
   std::map<std::uint64_t, std::shared_ptr<UserListener>> user_listeners;
@@ -180,7 +184,16 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     id = 0;
   }
 
+  // Listeners run under delivery_mutex (never under `mutex`), so that remove_listener() can
+  // wait for a call in progress. Only the thread advancing the clock delivers.
   void deliver(const Notes& notes) {
+    if (notes.empty()) return;
+    std::lock_guard delivering(delivery_mutex);
+    delivering_thread = std::this_thread::get_id();
+    struct Reset {
+      std::atomic<std::thread::id>& id;
+      ~Reset() { id = std::thread::id(); }
+    } reset{delivering_thread};
     for (const auto& note : notes) {
       if (const auto* p = std::get_if<PoseNote>(&note)) {
         for (const auto& fn : snapshot(pose_listeners)) (*fn)(p->robot, p->pose, p->moving);
@@ -518,10 +531,15 @@ double World::sound_level(const Utterance& utterance, Point at) const {
 }
 
 void World::remove_listener(std::uint64_t id) {
-  std::lock_guard lock(impl_->mutex);
-  impl_->pose_listeners.erase(id);
-  impl_->user_listeners.erase(id);
-  impl_->utterance_listeners.erase(id);
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->pose_listeners.erase(id);
+    impl_->user_listeners.erase(id);
+    impl_->utterance_listeners.erase(id);
+  }
+  if (impl_->delivering_thread.load() != std::this_thread::get_id()) {
+    std::lock_guard wait_for_delivery(impl_->delivery_mutex);
+  }
 }
 
 }  // namespace icars::sim

@@ -365,6 +365,42 @@ TEST(World, RunsUnderARealTimeDriver) {
   EXPECT_EQ(world.robot_room("robot1"), "bedroom");
 }
 
+TEST(World, ARemovedListenerIsNeitherRunningNorCalledAgain) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::atomic<int> calls{0};
+  std::atomic<int> in_flight{0};
+  const auto id = world.on_robot_pose([&](const std::string&, const Pose&, bool) {
+    ++in_flight;
+    std::this_thread::sleep_for(2ms);  // slow, so that removal often overlaps a call
+    ++calls;
+    --in_flight;
+  });
+  // A listener may remove itself without deadlocking.
+  std::atomic<std::uint64_t> self{0};
+  std::atomic<int> self_calls{0};
+  self = world.on_robot_pose([&](const std::string&, const Pose&, bool) {
+    ++self_calls;
+    world.remove_listener(self);
+  });
+  RealTimeDriver driver(clock, 1000.0, 10ms);
+  driver.start();
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("bedroom_window")));
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (calls < 3 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  ASSERT_GE(calls.load(), 3);
+  world.remove_listener(id);
+  EXPECT_EQ(in_flight.load(), 0);
+  const int after = calls.load();
+  std::this_thread::sleep_for(30ms);
+  driver.stop();
+  EXPECT_EQ(calls.load(), after);
+  EXPECT_EQ(self_calls.load(), 1);
+}
+
 TEST(World, DestroyingTheWorldCancelsItsEvents) {
   const auto house = paper_house();
   SimClock clock(house.start_time);

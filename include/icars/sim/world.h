@@ -94,7 +94,10 @@ class World {
   // (distance at least 1 m), minus 10 dB for every wall between (open doors do not count).
   double sound_level(const Utterance& utterance, Point at) const;
 
-  void remove_listener(std::uint64_t id);  // a listener may still run once if already started
+  // After this returns the listener is not running and never runs again (it waits for a call
+  // in progress on the clock's thread), so its owner may be destroyed. Called from inside a
+  // listener, it does not wait: the running call finishes normally.
+  void remove_listener(std::uint64_t id);
 
  private:
   struct Impl;
