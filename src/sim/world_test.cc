@@ -293,6 +293,33 @@ TEST(World, PostureAndRoomFollowTheUserThroughTheEvening) {
   EXPECT_EQ(world.user("user1").at, house.find_furniture("bed")->area.center());
 }
 
+TEST(World, AnActivityDueDuringAWalkStartsOnArrivalAndOnceMeansOnce) {
+  const auto house = parse_house(R"(<house name="hall" start="07:59">
+      <room name="hall" x0="0" y0="0" x1="12" y1="3"/>
+      <waypoint name="far_end" x="11" y="1.5"/>
+      <user id="u" x="1" y="1.5" speed="1" repeat="once">
+        <go_to at="08:00" target="far_end"/>
+        <say at="08:00:01" text="made it"/>
+      </user>
+    </house>)",
+                                 "hall.xml");
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<Utterance> heard;
+  world.on_utterance([&](const Utterance& u) { heard.push_back(u); });
+  clock.advance_to(at_time(0, 8, 0, 5));
+  EXPECT_TRUE(heard.empty());  // still walking the 10 m
+  EXPECT_EQ(world.user("u").posture, Posture::walking);
+  EXPECT_NEAR(world.user("u").at.x, 6.0, 1e-9);
+  clock.advance_to(at_time(0, 8, 1));
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].time, at_time(0, 8, 0, 10));
+  EXPECT_EQ(heard[0].at, (Point{11, 1.5}));
+  clock.advance_to(at_time(3, 12, 0));  // never again
+  EXPECT_EQ(heard.size(), 1u);
+  EXPECT_EQ(clock.pending(), 0u);
+}
+
 TEST(World, SameSeedSameRunDifferentSeedDifferentRun) {
   auto house = paper_house();
   const auto a = run_day(house, at_time(1, 9, 0));
