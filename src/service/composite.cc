@@ -33,16 +33,18 @@ void SpeechSensor::on_sound(const home::SoundEvent& e) {
   speech.device = e.device;
   speech.time_ms = e.time_ms;
   recognizer_->proxy().recognize_async(
-      e.audio, [this, speech = std::move(speech)](std::exception_ptr error,
-                                                  home::Recognition result) mutable {
+      e.audio, [weak = weak_from_this(), speech = std::move(speech)](
+                   std::exception_ptr error, home::Recognition result) mutable {
+        auto self = std::static_pointer_cast<SpeechSensor>(weak.lock());
+        if (!self) return;
         if (error) {
-          ++rejected_;  // not speech, or the recognizer is gone: nothing to publish
+          ++self->rejected_;  // not speech, or the recognizer is gone: nothing to publish
           return;
         }
         speech.text = std::move(result.text);
         speech.confidence = result.confidence;
-        ++recognized_;
-        events_.notify(speech);
+        ++self->recognized_;
+        self->events_.notify(speech);
       });
 }
 
@@ -71,15 +73,18 @@ void CameraFactory::capture(Capture done) {
     capturing_ = true;
   }
   ++remote_captures_;
-  camera_->proxy().capture_async([this](std::exception_ptr error, home::Image image) {
+  camera_->proxy().capture_async([weak = weak_from_this()](std::exception_ptr error,
+                                                           home::Image image) {
+    auto self = std::static_pointer_cast<CameraFactory>(weak.lock());
+    if (!self) return;
     std::vector<Capture> waiting;
     {
-      std::lock_guard lock(mutex_);
-      capturing_ = false;
-      waiting.swap(waiting_);
+      std::lock_guard lock(self->mutex_);
+      self->capturing_ = false;
+      waiting.swap(self->waiting_);
       if (!error) {
-        latest_ = image;
-        taken_at_ = std::chrono::steady_clock::now();
+        self->latest_ = image;
+        self->taken_at_ = std::chrono::steady_clock::now();
       }
     }
     for (auto& w : waiting) w(error, image);
@@ -106,19 +111,24 @@ UserLocator::~UserLocator() {
 void UserLocator::update_availability() { set_available(camera_->available() && faces_->available()); }
 
 void UserLocator::locate(std::function<void(std::exception_ptr, const std::vector<UserLocation>&)> done) {
-  camera_->capture([this, done = std::move(done)](std::exception_ptr error, const home::Image& image) {
-    if (error) {
-      done(error, {});
+  camera_->capture([weak = weak_from_this(), done = std::move(done)](std::exception_ptr error,
+                                                                     const home::Image& image) {
+    auto self = std::static_pointer_cast<UserLocator>(weak.lock());
+    if (!self || error) {
+      done(error ? error : std::make_exception_ptr(planet::Error(planet::ErrorKind::failed,
+                                                                 "the user locator is gone")),
+           {});
       return;
     }
-    faces_->proxy().recognize_async(
-        image, [this, done, camera = attributes().device, time = image.time_ms](
+    self->faces_->proxy().recognize_async(
+        image, [weak, done, camera = self->attributes().device, time = image.time_ms](
                    std::exception_ptr e, std::vector<home::Face> faces) {
           std::vector<UserLocation> found;
+          auto locator = std::static_pointer_cast<UserLocator>(weak.lock());
           if (!e) {
             for (const auto& f : faces) {
               found.push_back(UserLocation{f.person, f.x, f.y, f.confidence, camera, time});
-              events_.notify(found.back());
+              if (locator) locator->events_.notify(found.back());
             }
           }
           done(e, found);

@@ -102,8 +102,10 @@ class SensorAdaptor : public AdaptorOf<Prx> {
       communicator.adapter().add(listener_path(), servant);
     }
     const auto ref = communicator.reference<ListenerInterface>(listener_path());
-    subscribe_listener(this->proxy(), ref, [this, &communicator](std::exception_ptr e) {
-      if (e) this->log_failure(communicator, "could not subscribe to its sensor", e);
+    subscribe_listener(this->proxy(), ref, [weak = this->weak_from_this(), &communicator](
+                                               std::exception_ptr e) {
+      auto self = std::static_pointer_cast<SensorAdaptor>(weak.lock());
+      if (e && self) self->log_failure(communicator, "could not subscribe to its sensor", e);
     });
   }
 

@@ -58,7 +58,9 @@ class Listeners {
   std::uint64_t next_ = 1;
 };
 
-class Service {
+// Services are owned by shared_ptr (the container holds them); asynchronous work a service
+// starts holds only a weak reference, so a service may go away with calls in flight.
+class Service : public std::enable_shared_from_this<Service> {
  public:
   Service(std::string id, std::string type, ServiceAttributes attributes);
   virtual ~Service() = default;
