@@ -1,0 +1,222 @@
+// The simulated devices over real PLANET connections, with the simulated clock advanced by
+// hand: every capability answers as its IDL says, sensors publish when the simulated user
+// does something, out-of-range commands are refused with a typed exception, and simulated
+// speech round-trips through the speech engine only when it is loud enough.
+#include <gtest/gtest.h>
+
+#include <mutex>
+
+#include "child_process.h"
+#include "home.planet.h"
+#include "icars/device/device_manager.h"
+#include "icars/device/sim_devices.h"
+#include "icars/planet/stream.h"
+#include "icars/sim/house.h"
+
+namespace icars::device {
+namespace {
+
+using namespace std::chrono_literals;
+namespace p = icars::planet;
+
+// The paper's house plus a motion sensor in the bedroom and a clock, hosted on one
+// communicator; the test calls the capabilities through a second one, over loopback.
+class SimDevices : public ::testing::Test {
+ protected:
+  static sim::House house() {
+    sim::House h = sim::load_house(ICARS_PAPER_HOUSE);
+    sim::DeviceSpec motion;
+    motion.id = "bedroom_motion";
+    motion.type = "MotionSensor";
+    motion.room = "bedroom";
+    motion.pose = {7.0, 1.0, 0};
+    sim::DeviceSpec clock;
+    clock.id = "clock";
+    clock.type = "Clock";
+    clock.room = "living_room";
+    h.devices.push_back(motion);
+    h.devices.push_back(clock);
+    return h;
+  }
+
+  void SetUp() override {
+    const SimContext context{world_, devices_};
+    for (const auto& spec : world_.house().devices) manager_.add(make_sim_device(spec, context));
+    for (auto& d : make_sim_engines(context)) manager_.add(d);
+    peer_ = client_.connect("127.0.0.1", devices_.listen("127.0.0.1", 0));
+    ASSERT_TRUE(peer_->wait_connected(20s));
+  }
+  template <class Prx>
+  Prx capability(const std::string& device, const std::string& name) {
+    return Prx(client_, peer_, "/devices/" + device + "/" + name);
+  }
+
+  sim::SimClock clock_{sim::at_time(0, 18, 0)};
+  sim::World world_{house(), clock_};
+  p::Communicator devices_;
+  DeviceManager manager_{devices_};
+  p::Communicator client_;
+  std::shared_ptr<p::Peer> peer_;
+};
+
+TEST_F(SimDevices, ActuatorsKeepTheirStateAndRefuseOutOfRangeCommands) {
+  auto tv = capability<home::TVControlPrx>("tv", "tv_control");
+  tv.set_power(true);
+  tv.set_channel(42);
+  tv.set_volume(30);
+  const auto state = tv.state();
+  EXPECT_TRUE(state.on);
+  EXPECT_EQ(state.channel, 42);
+  EXPECT_EQ(state.volume, 30);
+  try {
+    tv.set_channel(120);
+    FAIL() << "channel 120 accepted";
+  } catch (const home::OutOfRange& e) {
+    EXPECT_EQ(e.what_is(), "channel");
+    EXPECT_EQ(e.requested(), 120);
+    EXPECT_EQ(e.max(), 99);
+  }
+  auto light = capability<home::LightPrx>("bedroom_light", "light");
+  light.set_intensity(30);
+  EXPECT_EQ(light.state().intensity, 30);
+  EXPECT_THROW(light.set_intensity(-1), home::OutOfRange);
+  auto speaker = capability<home::SpeakerPrx>("robot1_speaker", "speaker");
+  speaker.play("calm music");
+  speaker.speak("good night");
+  EXPECT_EQ(speaker.state().playing, "calm music");
+  EXPECT_EQ(speaker.state().last_spoken, "good night");
+  speaker.stop();
+  EXPECT_EQ(speaker.state().playing, "");
+}
+
+TEST_F(SimDevices, TheClockTellsSimulatedTime) {
+  auto clock = capability<home::ClockPrx>("clock", "clock");
+  EXPECT_EQ(clock.time_of_day(), "18:00:00");
+  clock_.advance_by(90min);
+  EXPECT_EQ(clock.now_ms(), sim::at_time(0, 19, 30).count());
+  EXPECT_EQ(clock.time_of_day(), "19:30:00");
+}
+
+TEST_F(SimDevices, SensorsPublishWhatTheUserDoes) {
+  std::mutex mutex;
+  std::vector<home::MotionEvent> motion;
+  std::vector<home::OccupancyEvent> occupancy;
+  auto motion_listener = std::make_shared<p::Servant>(std::string(home::MotionListener::type_id));
+  motion_listener->implement(home::MotionListener::on_motion, [&](const home::MotionEvent& e) {
+    std::lock_guard lock(mutex);
+    motion.push_back(e);
+  });
+  auto bed_listener = std::make_shared<p::Servant>(std::string(home::OccupancyListener::type_id));
+  bed_listener->implement(home::OccupancyListener::on_occupancy, [&](const home::OccupancyEvent& e) {
+    std::lock_guard lock(mutex);
+    occupancy.push_back(e);
+  });
+  client_.adapter().add("/motion", motion_listener);
+  client_.adapter().add("/bed", bed_listener);
+  auto sensor = capability<home::MotionSensorPrx>("bedroom_motion", "motion");
+  auto bed = capability<home::OccupancySensorPrx>("bed_sensor", "occupancy");
+  sensor.subscribe(client_.reference<home::MotionListener>("/motion"));
+  bed.subscribe(client_.reference<home::OccupancyListener>("/bed"));
+  EXPECT_FALSE(sensor.motion());
+  EXPECT_FALSE(bed.occupied());
+
+  clock_.advance_to(sim::at_time(0, 23, 0));  // 22:00 to the bedroom, 22:30 in bed
+  EXPECT_TRUE(sensor.motion());
+  EXPECT_TRUE(bed.occupied());
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    std::lock_guard lock(mutex);
+    return !motion.empty() && !occupancy.empty();
+  }));
+  std::lock_guard lock(mutex);
+  EXPECT_TRUE(motion.front().motion);
+  EXPECT_EQ(motion.front().room, "bedroom");
+  EXPECT_GE(motion.front().time_ms, sim::at_time(0, 21, 59).count());
+  EXPECT_TRUE(occupancy.back().occupied);
+  EXPECT_EQ(occupancy.back().furniture, "bed");
+}
+
+TEST_F(SimDevices, TheMicrophoneHearsSpeechTheEngineRecognizesIt) {
+  std::mutex mutex;
+  std::vector<home::SoundEvent> sounds;
+  auto listener = std::make_shared<p::Servant>(std::string(home::SoundListener::type_id));
+  listener->implement(home::SoundListener::on_sound, [&](const home::SoundEvent& e) {
+    std::lock_guard lock(mutex);
+    sounds.push_back(e);
+  });
+  client_.adapter().add("/sounds", listener);
+  capability<home::MicrophonePrx>("robot1_mic", "sound_sensor")
+      .subscribe(client_.reference<home::SoundListener>("/sounds"));
+  world_.say("user1", "turn on the TV");
+  clock_.advance_by(0ms);
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    std::lock_guard lock(mutex);
+    return !sounds.empty();
+  }));
+  home::SoundEvent heard;
+  {
+    std::lock_guard lock(mutex);
+    heard = sounds.front();
+  }
+  EXPECT_EQ(heard.device, "robot1_mic");
+  auto engine = capability<home::SpeechRecognizerPrx>("speech_engine", "speech_recognizer");
+  const auto recognition = engine.recognize(heard.audio);
+  EXPECT_EQ(recognition.text, "turn on the TV");
+  EXPECT_GT(recognition.confidence, 0.5);
+  // Too quiet, or not speech at all: refused with a reason.
+  EXPECT_THROW(engine.recognize(SimulatedSpeech::encode("mumble", 20)), home::NotRecognized);
+  EXPECT_THROW(engine.recognize(p::Binary{std::vector<std::byte>(64, std::byte{1})}),
+               home::NotRecognized);
+}
+
+TEST_F(SimDevices, TheMicrophoneStreamsAmbientAudio) {
+  auto mic = capability<home::MicrophonePrx>("robot1_mic", "sound_sensor");
+  auto audio = mic.record(250);
+  std::size_t bytes = 0;
+  for (auto chunk = audio->read(); !chunk.empty(); chunk = audio->read()) bytes += chunk.size();
+  EXPECT_EQ(bytes, 250u * 32);  // 16 kHz, 16-bit
+  EXPECT_THROW(mic.record(0), home::OutOfRange);
+}
+
+TEST_F(SimDevices, TheCameraSeesTheUserInItsRoomAndTheVisionEngineReadsIt) {
+  // Drive the robot to the middle of the living room, where the user is at 18:00, and look.
+  auto wheels = capability<home::WheelsPrx>("robot1_wheels", "wheels");
+  EXPECT_THROW(wheels.go_to_waypoint("garage"), home::UnknownTarget);
+  wheels.go_to_waypoint("living_room");
+  clock_.advance_by(60s);
+  EXPECT_EQ(wheels.room(), "living_room");
+  const auto image = capability<home::CameraPrx>("robot1_camera", "camera").capture();
+  EXPECT_EQ(image.encoding, "sim/scene");
+  const auto faces =
+      capability<home::FaceRecognizerPrx>("vision_engine", "face_recognizer").recognize(image);
+  ASSERT_EQ(faces.size(), 1u);
+  EXPECT_EQ(faces[0].person, "user1");
+  EXPECT_NEAR(faces[0].x, 0.6, 0.01);
+}
+
+TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {
+  sim::SimClock clock;
+  sim::World world(sim::load_house(ICARS_PAPER_HOUSE), clock);
+  p::Communicator communicator;
+  sim::DeviceSpec spec;
+  spec.id = "toaster";
+  spec.type = "Toaster";
+  try {
+    make_sim_device(spec, SimContext{world, communicator});
+    FAIL() << "a toaster was simulated";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("type 'Toaster'"), std::string::npos) << e.what();
+  }
+  spec.id = "mic";
+  spec.type = "Microphone";
+  spec.params["threshold_db"] = "loud";
+  try {
+    make_sim_device(spec, SimContext{world, communicator});
+    FAIL() << "a bad threshold was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("threshold_db = 'loud' is not a number"), std::string::npos)
+        << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace icars::device
