@@ -180,6 +180,28 @@ TEST_F(SF, ServicesFollowTheirDevicesConnection) {
   EXPECT_TRUE(planet_test::wait_until([&] { return heard.load() == 1; }));
 }
 
+TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
+  auto server = std::make_unique<p::Communicator>();
+  auto sf = std::make_unique<service::ServiceFramework>(*server);
+  const auto port = server->listen("127.0.0.1", 0);
+  DeviceSide devices(port);
+  ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
+  EXPECT_EQ(sf->container().all().size(), 5u);
+
+  sf.reset();  // the server goes down...
+  server.reset();
+  server = std::make_unique<p::Communicator>();  // ...and comes back on the same port, empty
+  sf = std::make_unique<service::ServiceFramework>(*server);
+  ASSERT_EQ(server->listen("127.0.0.1", port), port);
+  ASSERT_TRUE(devices.manager.wait_registered(2, 30s)) << devices.manager.last_error();
+  EXPECT_EQ(sf->container().all().size(), 5u);
+  auto tv = sf->container().find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
+  ASSERT_TRUE(tv);
+  tv->proxy().set_channel(9);
+  EXPECT_EQ(tv->proxy().state().channel, 9);
+  sf.reset();
+}
+
 TEST_F(SF, BadRegistrationsAreRefusedWithAReason) {
   p::Communicator client;
   auto peer = client.connect("127.0.0.1", port_);
