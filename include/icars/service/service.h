@@ -26,35 +26,55 @@ struct ServiceAttributes {
   std::string carrier;     // the robot carrying its device, or ""
 };
 
-// A list of callbacks, called outside the lock, so a callback may add or remove others.
+// A list of callbacks. `notify` calls them outside the list's lock, so a callback may add or
+// remove others; `remove` waits for a call of that callback running on another thread, so once
+// it returns the callback is never running (removing itself from inside is allowed).
 template <class... A>
 class Listeners {
  public:
   std::uint64_t add(std::function<void(const A&...)> fn) {
     std::lock_guard lock(mutex_);
-    fns_.emplace(next_, std::move(fn));
+    entries_.emplace(next_, std::make_shared<Entry>(std::move(fn)));
     return next_++;
   }
   bool remove(std::uint64_t id) {
-    std::lock_guard lock(mutex_);
-    return fns_.erase(id) != 0;
-  }
-  void notify(const A&... args) const {
-    std::vector<std::function<void(const A&...)>> copy;
+    std::shared_ptr<Entry> entry;
     {
       std::lock_guard lock(mutex_);
-      for (const auto& [id, fn] : fns_) copy.push_back(fn);
+      auto it = entries_.find(id);
+      if (it == entries_.end()) return false;
+      entry = std::move(it->second);
+      entries_.erase(it);
     }
-    for (const auto& fn : copy) fn(args...);
+    std::lock_guard calling(entry->calling);  // recursive: a callback may remove itself
+    entry->removed = true;
+    return true;
+  }
+  void notify(const A&... args) const {
+    std::vector<std::shared_ptr<Entry>> copy;
+    {
+      std::lock_guard lock(mutex_);
+      for (const auto& [id, entry] : entries_) copy.push_back(entry);
+    }
+    for (const auto& entry : copy) {
+      std::lock_guard calling(entry->calling);
+      if (!entry->removed) entry->fn(args...);
+    }
   }
   std::size_t size() const {
     std::lock_guard lock(mutex_);
-    return fns_.size();
+    return entries_.size();
   }
 
  private:
+  struct Entry {
+    explicit Entry(std::function<void(const A&...)> f) : fn(std::move(f)) {}
+    std::function<void(const A&...)> fn;
+    std::recursive_mutex calling;
+    bool removed = false;
+  };
   mutable std::mutex mutex_;
-  std::map<std::uint64_t, std::function<void(const A&...)>> fns_;
+  std::map<std::uint64_t, std::shared_ptr<Entry>> entries_;
   std::uint64_t next_ = 1;
 };
 
