@@ -276,25 +276,39 @@ std::shared_ptr<Peer> ConnectionManager::connect(const std::string& host, std::u
 }
 
 std::uint64_t ConnectionManager::add_listener(ConnectionListener listener) {
+  auto entry = std::make_shared<ListenerEntry>();
+  entry->fn = std::move(listener);
   std::lock_guard lock(mutex_);
-  listeners_.emplace(next_listener_, std::move(listener));
+  listeners_.emplace(next_listener_, std::move(entry));
   return next_listener_++;
 }
 
 void ConnectionManager::remove_listener(std::uint64_t id) {
-  std::lock_guard lock(mutex_);
-  listeners_.erase(id);
+  std::shared_ptr<ListenerEntry> entry;
+  {
+    std::lock_guard lock(mutex_);
+    auto it = listeners_.find(id);
+    if (it == listeners_.end()) return;
+    entry = std::move(it->second);
+    listeners_.erase(it);
+  }
+  // Waits for a call in progress on the io thread, so the listener's owner may be destroyed
+  // as soon as this returns.
+  std::lock_guard calling(entry->calling);
+  entry->removed = true;
 }
 
 void ConnectionManager::notify(const ConnectionEvent& event) {
-  std::vector<ConnectionListener> listeners;
+  std::vector<std::shared_ptr<ListenerEntry>> listeners;
   {
     std::lock_guard lock(mutex_);
     for (const auto& [id, l] : listeners_) listeners.push_back(l);
   }
   for (const auto& l : listeners) {
+    std::lock_guard calling(l->calling);
+    if (l->removed) continue;
     try {
-      l(event);
+      l->fn(event);
     } catch (const std::exception& e) {
       log_->error("connection listener threw: {}", e.what());
     }

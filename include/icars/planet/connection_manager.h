@@ -107,6 +107,8 @@ class ConnectionManager final : public MessageHandler {
                                 ReconnectPolicy policy = {});
 
   std::uint64_t add_listener(ConnectionListener listener);
+  // Once this returns the listener is not running and never runs again (a listener may remove
+  // itself). Thread-safe.
   void remove_listener(std::uint64_t id);
   void set_acceptor(Connection::Acceptor acceptor);  // call before listen()
   void set_local_pun(std::string pun);  // defaults to "<address>:<port>" of the socket
@@ -151,7 +153,12 @@ class ConnectionManager final : public MessageHandler {
   std::unordered_map<std::uint64_t, std::shared_ptr<Connection>> connections_;
   std::unordered_map<std::uint64_t, std::weak_ptr<Peer>> owners_;
   std::vector<std::weak_ptr<Peer>> peers_;
-  std::map<std::uint64_t, ConnectionListener> listeners_;
+  struct ListenerEntry {
+    ConnectionListener fn;
+    std::recursive_mutex calling;  // held while fn runs; remove_listener waits on it
+    bool removed = false;
+  };
+  std::map<std::uint64_t, std::shared_ptr<ListenerEntry>> listeners_;
   std::uint64_t next_listener_ = 1;
   bool shut_down_ = false;
 };
