@@ -23,3 +23,13 @@ function(icars_add_test)
   endif()
   gtest_discover_tests(${T_NAME} DISCOVERY_TIMEOUT 60 PROPERTIES ${properties})
 endfunction()
+
+# icars_add_library(<layer> <sources...>)
+# One library per layer: target icars_<layer>, alias icars::<layer>, public headers in include/.
+function(icars_add_library layer)
+  add_library(icars_${layer} ${ARGN})
+  add_library(icars::${layer} ALIAS icars_${layer})
+  target_include_directories(icars_${layer} PUBLIC
+    $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}/include>
+    $<INSTALL_INTERFACE:include>)
+endfunction()
