@@ -6,7 +6,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   libasio-dev libssl-dev
-  libspdlog-dev libfmt-dev libcli11-dev libpugixml-dev
+  libspdlog-dev libfmt-dev libcli11-dev libpugixml-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
 )
 

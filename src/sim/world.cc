@@ -7,6 +7,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <numbers>
 #include <random>
 #include <stdexcept>
 #include <thread>
@@ -466,6 +467,24 @@ void World::stop_robot(const std::string& robot) {
   const auto now = s.clock.now();
   Impl::Notes notes;
   s.halt(r, now, notes);
+  notes.insert(notes.begin(), Impl::PoseNote{r.spec->id, r.pose, false});
+  s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
+}
+
+void World::turn_robot(const std::string& robot, double theta) {
+  if (!std::isfinite(theta)) {
+    throw std::invalid_argument(
+        fmt::format("heading {} for robot \"{}\" is not a finite angle in radians", theta, robot));
+  }
+  double heading = std::remainder(theta, 2 * std::numbers::pi);  // [-pi, pi]
+  if (heading <= -std::numbers::pi) heading += 2 * std::numbers::pi;
+  auto& s = *impl_;
+  std::lock_guard lock(s.mutex);
+  auto& r = s.robot(robot);
+  const auto now = s.clock.now();
+  Impl::Notes notes;
+  s.halt(r, now, notes);
+  r.pose.theta = heading;
   notes.insert(notes.begin(), Impl::PoseNote{r.spec->id, r.pose, false});
   s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
 }

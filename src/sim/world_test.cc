@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <numbers>
 #include <thread>
 
 #include "icars/sim/planner.h"
@@ -136,6 +137,61 @@ TEST(World, StopAndSupersedeEndAMotionWithDoneFalse) {
   clock.advance_by(1min);
   EXPECT_EQ(log, (std::vector<std::string>{"a:ended", "b:ended", "c:arrived"}));
   EXPECT_LT(distance(world.robot_pose("robot1").position(), *house.locate("kitchen_corner")), 1e-9);
+}
+
+TEST(World, TurnRobotStopsAMotionAndReportsTheNewHeadingFromTheClock) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<PoseEvent> poses;
+  world.on_robot_pose([&](const std::string& robot, const Pose& pose, bool moving) {
+    EXPECT_EQ(robot, "robot1");
+    poses.push_back({clock.now(), pose, moving});
+  });
+  std::vector<bool> done;
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("bedroom_window"),
+                               [&](bool arrived) { done.push_back(arrived); }));
+  clock.advance_by(2s);
+  const auto at = world.robot_pose("robot1");
+  poses.clear();
+  world.turn_robot("robot1", std::numbers::pi / 2);
+  EXPECT_FALSE(world.robot_moving("robot1"));
+  EXPECT_NEAR(world.robot_pose("robot1").theta, std::numbers::pi / 2, 1e-12);
+  EXPECT_EQ(world.robot_pose("robot1").position(), at.position());  // in place
+  EXPECT_TRUE(poses.empty());  // never inside the call
+  EXPECT_TRUE(done.empty());
+  clock.advance_by(0s);
+  EXPECT_EQ(done, std::vector<bool>{false});
+  ASSERT_EQ(poses.size(), 1u);
+  EXPECT_FALSE(poses[0].moving);
+  EXPECT_EQ(poses[0].time, clock.now());
+  EXPECT_EQ(poses[0].pose.position(), at.position());
+  EXPECT_NEAR(poses[0].pose.theta, std::numbers::pi / 2, 1e-12);
+  clock.advance_by(30s);
+  EXPECT_EQ(poses.size(), 1u);  // no more reports: the motion is over
+  EXPECT_EQ(done.size(), 1u);
+
+  // Turning a standing robot reports too; headings are normalised to (-pi, pi].
+  const std::vector<std::pair<double, double>> turns = {
+      {-std::numbers::pi, std::numbers::pi}, {3 * std::numbers::pi, std::numbers::pi},
+      {-std::numbers::pi / 2 + 4 * std::numbers::pi, -std::numbers::pi / 2}, {0.25, 0.25}};
+  for (const auto& [asked, expected] : turns) {
+    world.turn_robot("robot1", asked);
+    clock.advance_by(0s);
+    EXPECT_NEAR(world.robot_pose("robot1").theta, expected, 1e-9) << asked;
+    EXPECT_NEAR(poses.back().pose.theta, expected, 1e-9) << asked;
+    EXPECT_FALSE(poses.back().moving);
+  }
+  EXPECT_EQ(poses.size(), 1 + turns.size());
+  EXPECT_EQ(world.robot_pose("robot1").position(), at.position());
+
+  // The robot moves on normally after a turn.
+  ASSERT_TRUE(world.move_robot("robot1", *house.locate("entrance")));
+  clock.advance_by(1min);
+  EXPECT_LT(distance(world.robot_pose("robot1").position(), *house.locate("entrance")), 1e-9);
+
+  EXPECT_THROW(world.turn_robot("robot9", 0), std::invalid_argument);
+  EXPECT_THROW(world.turn_robot("robot1", std::nan("")), std::invalid_argument);
 }
 
 TEST(World, UnreachableOrBlockedTargets) {

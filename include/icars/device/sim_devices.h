@@ -17,8 +17,10 @@
 //   SpeechEngine  speech_recognizer  home::SpeechRecognizer (a software device)
 //   VisionEngine  face_recognizer    home::FaceRecognizer   (a software device)
 // and the pseudo-device "simulator" (Simulation) through which tests and demos drive the world.
+// The actuators (TV, Light, Speaker) report what they did to SimContext::effects.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -43,11 +45,27 @@ struct SimulatedSpeech {
   static std::optional<Decoded> decode(const planet::Binary& audio);
 };
 
-// Everything a simulated device needs: the world and the communicator that serves the device
-// (for streams).
+// What a simulated actuator did, as the house would show it ("tv: power on"), independent of
+// what any client believes: one per accepted command, after the device's state changed (or
+// was confirmed: turning on a TV that is on is reported too). Refused commands report nothing.
+struct DeviceEffect {
+  sim::SimTime time{0};  // the clock's time when the command took effect
+  std::string device;    // "tv"
+  std::string what;      // "power", "channel", "volume", "intensity", "playing", "stopped", "spoke"
+  std::string value;     // "on"/"off", "5", the track, the spoken text; "" for "stopped"
+};
+// Called on the thread of the communicator serving the device, with no lock of the device
+// held; it must not block for long (it delays that communicator's other calls).
+using EffectObserver = std::function<void(const DeviceEffect&)>;
+
+// Everything a simulated device needs: the world, the communicator that serves the device
+// (for streams), and who hears the actuators' effects (empty: nobody).
 struct SimContext {
+  SimContext(sim::World& w, planet::Communicator& c, EffectObserver e = {})
+      : world(w), communicator(c), effects(std::move(e)) {}
   sim::World& world;
   planet::Communicator& communicator;
+  EffectObserver effects;
 };
 
 // The device for a device of the house; throws std::invalid_argument for an unknown type.

@@ -27,6 +27,7 @@ struct SimulatedHouseOptions {
   bool simulator = true;          // host the Simulation control device
   std::string pun;                // the device manager's PLANET name
   std::shared_ptr<spdlog::logger> logger;  // the device communicator's; default: stderr, info
+  EffectObserver effects;  // hears what the simulated actuators do (SimContext::effects)
 };
 
 class SimulatedHouse {

@@ -129,3 +129,7 @@ class CompositeFactory {
 };
 
 }  // namespace icars::service
+
+// The composites' events are typed PLANET events, so behaviors see them like any sensor's.
+PLANET_EVENT(icars::service::SpeechEvent, text, confidence, direction, room, device, time_ms);
+PLANET_EVENT(icars::service::UserLocation, person, x, y, confidence, camera, time_ms);

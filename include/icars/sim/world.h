@@ -77,6 +77,12 @@ class World {
                                                std::function<void(bool arrived)> done = {});
   // Stops where the robot is now; pose listeners then hear it stopped. No-op when not moving.
   void stop_robot(const std::string& robot);
+  // Turns the robot in place to heading `theta` (radians, house frame), stopping a motion in
+  // progress as stop_robot() does (its `done` hears false). Pose listeners then hear the new
+  // heading, not moving, from a clock event at the current time, even when the heading did
+  // not change. The heading is normalised to (-pi, pi]; a non-finite one throws
+  // std::invalid_argument.
+  void turn_robot(const std::string& robot, double theta);
   std::uint64_t on_robot_pose(
       std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn);
 

@@ -41,21 +41,50 @@ std::string room_of(const sim::World& world, sim::Point at) {
 
 // --- Actuators -------------------------------------------------------------------------------
 
+// Tells SimContext::effects what an actuator did, stamped with the clock's time. Call it after
+// the state changed, with the device's lock released.
+class EffectReporter {
+ public:
+  EffectReporter(std::string device, const SimContext& context)
+      : device_(std::move(device)), world_(context.world), observer_(context.effects) {}
+  void operator()(std::string what, std::string value) const {
+    if (!observer_) return;
+    observer_(DeviceEffect{world_.clock().now(), device_, std::move(what), std::move(value)});
+  }
+
+ private:
+  std::string device_;
+  sim::World& world_;
+  EffectObserver observer_;
+};
+
+std::string on_off(bool on) { return on ? "on" : "off"; }
+
 class SimTV final : public home::TVControlServant {
  public:
+  SimTV(std::string id, const SimContext& context) : report_(std::move(id), context) {}
   void set_power(bool on, const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    state_.on = on;
+    {
+      std::lock_guard lock(mutex_);
+      state_.on = on;
+    }
+    report_("power", on_off(on));
   }
   void set_channel(std::int32_t channel, const p::Current&) override {
     check_range("channel", channel, 1, 99);
-    std::lock_guard lock(mutex_);
-    state_.channel = channel;
+    {
+      std::lock_guard lock(mutex_);
+      state_.channel = channel;
+    }
+    report_("channel", std::to_string(channel));
   }
   void set_volume(std::int32_t volume, const p::Current&) override {
     check_range("volume", volume, 0, 100);
-    std::lock_guard lock(mutex_);
-    state_.volume = volume;
+    {
+      std::lock_guard lock(mutex_);
+      state_.volume = volume;
+    }
+    report_("volume", std::to_string(volume));
   }
   home::TVState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -63,20 +92,28 @@ class SimTV final : public home::TVControlServant {
   }
 
  private:
+  EffectReporter report_;
   std::mutex mutex_;
   home::TVState state_{false, 1, 20};
 };
 
 class SimLight final : public home::LightServant {
  public:
+  SimLight(std::string id, const SimContext& context) : report_(std::move(id), context) {}
   void set_power(bool on, const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    state_.on = on;
+    {
+      std::lock_guard lock(mutex_);
+      state_.on = on;
+    }
+    report_("power", on_off(on));
   }
   void set_intensity(std::int32_t percent, const p::Current&) override {
     check_range("intensity", percent, 0, 100);
-    std::lock_guard lock(mutex_);
-    state_.intensity = percent;
+    {
+      std::lock_guard lock(mutex_);
+      state_.intensity = percent;
+    }
+    report_("intensity", std::to_string(percent));
   }
   home::LightState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -84,28 +121,42 @@ class SimLight final : public home::LightServant {
   }
 
  private:
+  EffectReporter report_;
   std::mutex mutex_;
   home::LightState state_{false, 100};
 };
 
 class SimSpeaker final : public home::SpeakerServant {
  public:
+  SimSpeaker(std::string id, const SimContext& context) : report_(std::move(id), context) {}
   void play(const std::string& track, const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    state_.playing = track;
+    {
+      std::lock_guard lock(mutex_);
+      state_.playing = track;
+    }
+    report_("playing", track);
   }
   void stop(const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    state_.playing.clear();
+    {
+      std::lock_guard lock(mutex_);
+      state_.playing.clear();
+    }
+    report_("stopped", "");
   }
   void set_volume(std::int32_t volume, const p::Current&) override {
     check_range("volume", volume, 0, 100);
-    std::lock_guard lock(mutex_);
-    state_.volume = volume;
+    {
+      std::lock_guard lock(mutex_);
+      state_.volume = volume;
+    }
+    report_("volume", std::to_string(volume));
   }
   void speak(const std::string& text, const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    state_.last_spoken = text;
+    {
+      std::lock_guard lock(mutex_);
+      state_.last_spoken = text;
+    }
+    report_("spoke", text);
   }
   home::SpeakerState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -113,6 +164,7 @@ class SimSpeaker final : public home::SpeakerServant {
   }
 
  private:
+  EffectReporter report_;
   std::mutex mutex_;
   home::SpeakerState state_{"", 40, ""};
 };
@@ -215,6 +267,8 @@ class SimWheels final : public home::WheelsServant {
     return move(*at, waypoint);
   }
   void stop(const p::Current&) override { world_.stop_robot(robot_); }
+  // The position event that follows (from the clock) has the new heading, not moving.
+  void turn_to(double theta, const p::Current&) override { world_.turn_robot(robot_, theta); }
   home::Pose position(const p::Current&) override {
     const auto pose = world_.robot_pose(robot_);
     return home::Pose{pose.x, pose.y, pose.theta};
@@ -297,6 +351,7 @@ class SimOccupancySensor final : public home::OccupancySensorServant {
     listener_.set(world_.on_user([this](const sim::UserState&) { update(); }));
   }
   bool occupied(const p::Current&) override { return world_.occupied(furniture_); }
+  std::string furniture(const p::Current&) override { return furniture_; }
   void subscribe(home::OccupancyListenerPrx l, const p::Current&) override { events_.subscribe(l); }
   void unsubscribe(home::OccupancyListenerPrx l, const p::Current&) override { events_.unsubscribe(l); }
 
@@ -402,6 +457,7 @@ class SimulationControl final : public home::SimulationServant {
     world_.say(user, text);
   }
   std::string now(const p::Current&) override { return sim::format_time(world_.clock().now()); }
+  std::int64_t now_ms(const p::Current&) override { return ms(world_.clock().now()); }
 
  private:
   sim::World& world_;
@@ -470,11 +526,11 @@ std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext 
   auto device = std::make_shared<Device>(spec.id, spec.type, spec.room, spec.carrier);
   const std::string& t = spec.type;
   if (t == "TV") {
-    device->add("tv_control", std::make_shared<SimTV>());
+    device->add("tv_control", std::make_shared<SimTV>(spec.id, context));
   } else if (t == "Light") {
-    device->add("light", std::make_shared<SimLight>());
+    device->add("light", std::make_shared<SimLight>(spec.id, context));
   } else if (t == "Speaker") {
-    device->add("speaker", std::make_shared<SimSpeaker>());
+    device->add("speaker", std::make_shared<SimSpeaker>(spec.id, context));
   } else if (t == "Microphone") {
     device->add("sound_sensor",
                 std::make_shared<SimMicrophone>(

@@ -1,15 +1,19 @@
 // The simulated devices over real PLANET connections, with the simulated clock advanced by
 // hand: every capability answers as its IDL says, sensors publish when the simulated user
-// does something, out-of-range commands are refused with a typed exception, and simulated
-// speech round-trips through the speech engine only when it is loud enough.
+// does something, out-of-range commands are refused with a typed exception, actuators report
+// what they did, the wheels turn in place, and simulated speech round-trips through the speech
+// engine only when it is loud enough.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <mutex>
+#include <numbers>
 
 #include "child_process.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
 #include "icars/device/sim_devices.h"
+#include "icars/device/simulated_house.h"
 #include "icars/planet/stream.h"
 #include "icars/sim/house.h"
 
@@ -40,9 +44,13 @@ class SimDevices : public ::testing::Test {
   }
 
   void SetUp() override {
-    const SimContext context{world_, devices_};
+    const SimContext context{world_, devices_, [this](const DeviceEffect& e) {
+                               std::lock_guard lock(effects_mutex_);
+                               effects_.push_back(e);
+                             }};
     for (const auto& spec : world_.house().devices) manager_.add(make_sim_device(spec, context));
     for (auto& d : make_sim_engines(context)) manager_.add(d);
+    manager_.add(make_simulator_device(context));
     peer_ = client_.connect("127.0.0.1", devices_.listen("127.0.0.1", 0));
     ASSERT_TRUE(peer_->wait_connected(20s));
   }
@@ -51,6 +59,13 @@ class SimDevices : public ::testing::Test {
     return Prx(client_, peer_, "/devices/" + device + "/" + name);
   }
 
+  std::vector<DeviceEffect> effects() {
+    std::lock_guard lock(effects_mutex_);
+    return effects_;
+  }
+
+  std::mutex effects_mutex_;
+  std::vector<DeviceEffect> effects_;  // what the actuators reported, in order
   sim::SimClock clock_{sim::at_time(0, 18, 0)};
   sim::World world_{house(), clock_};
   p::Communicator devices_;
@@ -87,6 +102,96 @@ TEST_F(SimDevices, ActuatorsKeepTheirStateAndRefuseOutOfRangeCommands) {
   EXPECT_EQ(speaker.state().last_spoken, "good night");
   speaker.stop();
   EXPECT_EQ(speaker.state().playing, "");
+}
+
+// An effect as "time device: what value", for comparing lists.
+std::string describe(const DeviceEffect& e) {
+  return sim::format_time(e.time) + " " + e.device + ": " + e.what +
+         (e.value.empty() ? "" : " " + e.value);
+}
+
+TEST_F(SimDevices, ActuatorsReportWhatTheyDidWithTheClocksTime) {
+  auto tv = capability<home::TVControlPrx>("tv", "tv_control");
+  tv.set_power(true);
+  tv.set_power(true);  // confirmed: reported again
+  tv.set_channel(5);
+  EXPECT_THROW(tv.set_channel(120), home::OutOfRange);  // refused: nothing happened
+  tv.set_volume(30);
+  clock_.advance_by(5min);
+  auto light = capability<home::LightPrx>("living_light", "light");
+  light.set_power(false);
+  light.set_intensity(30);
+  EXPECT_THROW(light.set_intensity(101), home::OutOfRange);
+  clock_.advance_by(90s);
+  auto speaker = capability<home::SpeakerPrx>("robot1_speaker", "speaker");
+  speaker.play("calm");
+  speaker.set_volume(55);
+  speaker.speak("good night & sleep well");
+  speaker.stop();
+  (void)tv.state();  // reading a state is no effect
+  (void)speaker.state();
+
+  std::vector<std::string> got;
+  for (const auto& e : effects()) got.push_back(describe(e));
+  EXPECT_EQ(got, (std::vector<std::string>{
+                     "d0 18:00:00 tv: power on",
+                     "d0 18:00:00 tv: power on",
+                     "d0 18:00:00 tv: channel 5",
+                     "d0 18:00:00 tv: volume 30",
+                     "d0 18:05:00 living_light: power off",
+                     "d0 18:05:00 living_light: intensity 30",
+                     "d0 18:06:30 robot1_speaker: playing calm",
+                     "d0 18:06:30 robot1_speaker: volume 55",
+                     "d0 18:06:30 robot1_speaker: spoke good night & sleep well",
+                     "d0 18:06:30 robot1_speaker: stopped",
+                 }));
+}
+
+TEST(SimDeviceEffects, NobodyListeningIsFineAndTheSimulatedHousePassesTheObserverOn) {
+  std::mutex mutex;
+  std::vector<DeviceEffect> effects;
+  SimulatedHouseOptions options;
+  options.effects = [&](const DeviceEffect& e) {
+    std::lock_guard lock(mutex);
+    effects.push_back(e);
+  };
+  SimulatedHouse house(sim::load_house(ICARS_PAPER_HOUSE), options);
+  p::Communicator client;
+  const auto peer =
+      client.connect("127.0.0.1", house.communicator().listen("127.0.0.1", 0));
+  ASSERT_TRUE(peer->wait_connected(20s));
+  home::LightPrx(client, peer, "/devices/bedroom_light/light").set_power(true);
+  {
+    std::lock_guard lock(mutex);
+    ASSERT_EQ(effects.size(), 1u);
+    EXPECT_EQ(effects[0].device, "bedroom_light");
+    EXPECT_EQ(effects[0].what, "power");
+    EXPECT_EQ(effects[0].value, "on");
+    EXPECT_EQ(effects[0].time, sim::at_time(0, 18, 0));  // the house's start, clock not started
+  }
+
+  // Without an observer the actuators work as before.
+  sim::SimClock clock;
+  sim::World world(sim::load_house(ICARS_PAPER_HOUSE), clock);
+  p::Communicator devices;
+  DeviceManager manager(devices);
+  sim::DeviceSpec tv = *world.house().device("tv");
+  manager.add(make_sim_device(tv, SimContext{world, devices}));
+  const auto tv_peer = client.connect("127.0.0.1", devices.listen("127.0.0.1", 0));
+  ASSERT_TRUE(tv_peer->wait_connected(20s));
+  home::TVControlPrx remote(client, tv_peer, "/devices/tv/tv_control");
+  remote.set_power(true);
+  EXPECT_TRUE(remote.state().on);
+}
+
+TEST_F(SimDevices, TheSimulationTellsItsTimeInMilliseconds) {
+  auto simulation = capability<home::SimulationPrx>("simulator", "simulation");
+  EXPECT_EQ(simulation.now_ms(), clock_.now().count());
+  EXPECT_EQ(simulation.now_ms(), sim::at_time(0, 18, 0).count());
+  clock_.advance_by(90min + 250ms);
+  EXPECT_EQ(simulation.now_ms(), clock_.now().count());
+  EXPECT_EQ(simulation.now_ms(), sim::at_time(0, 19, 30).count() + 250);
+  EXPECT_EQ(simulation.now(), "d0 19:30:00.250");
 }
 
 TEST_F(SimDevices, TheClockTellsSimulatedTime) {
@@ -191,6 +296,63 @@ TEST_F(SimDevices, TheCameraSeesTheUserInItsRoomAndTheVisionEngineReadsIt) {
   ASSERT_EQ(faces.size(), 1u);
   EXPECT_EQ(faces[0].person, "user1");
   EXPECT_NEAR(faces[0].x, 0.6, 0.01);
+}
+
+TEST_F(SimDevices, TheWheelsTurnInPlaceAndStopAMotion) {
+  std::mutex mutex;
+  std::vector<home::PositionEvent> positions;
+  auto listener = std::make_shared<p::Servant>(std::string(home::PositionListener::type_id));
+  listener->implement(home::PositionListener::on_position, [&](const home::PositionEvent& e) {
+    std::lock_guard lock(mutex);
+    positions.push_back(e);
+  });
+  client_.adapter().add("/positions", listener);
+  auto wheels = capability<home::WheelsPrx>("robot1_wheels", "wheels");
+  wheels.subscribe(client_.reference<home::PositionListener>("/positions"));
+  const auto heading_reported = [&](double theta) {
+    return planet_test::wait_until([&] {
+      std::lock_guard lock(mutex);
+      return !positions.empty() && std::abs(positions.back().theta - theta) < 1e-9 &&
+             !positions.back().moving;
+    });
+  };
+
+  // Standing at the dock, facing -x: turn to face +y.
+  const auto start = wheels.position();
+  EXPECT_NEAR(start.theta, std::numbers::pi, 1e-9);
+  wheels.turn_to(std::numbers::pi / 2);
+  EXPECT_NEAR(wheels.position().theta, std::numbers::pi / 2, 1e-12);
+  clock_.advance_by(0ms);
+  ASSERT_TRUE(heading_reported(std::numbers::pi / 2));
+  {
+    std::lock_guard lock(mutex);
+    EXPECT_FALSE(positions.back().arrived);
+    EXPECT_EQ(positions.back().robot, "robot1");
+    EXPECT_EQ(positions.back().room, "living_room");
+    EXPECT_EQ(positions.back().time_ms, clock_.now().count());
+    EXPECT_NEAR(positions.back().x, start.x, 1e-12);
+    EXPECT_NEAR(positions.back().y, start.y, 1e-12);
+  }
+
+  // Turning while driving stops the drive where the robot is; it never arrives.
+  wheels.go_to_waypoint("bedroom_window");
+  clock_.advance_by(2s);
+  EXPECT_GT(sim::distance({wheels.position().x, wheels.position().y}, {start.x, start.y}), 0.5);
+  wheels.turn_to(-3 * std::numbers::pi / 4 + 2 * std::numbers::pi);  // normalised
+  clock_.advance_by(0ms);
+  const auto stopped = wheels.position();
+  EXPECT_NEAR(stopped.theta, -3 * std::numbers::pi / 4, 1e-9);
+  ASSERT_TRUE(heading_reported(-3 * std::numbers::pi / 4));
+  clock_.advance_by(60s);
+  const auto later = wheels.position();
+  EXPECT_EQ(later.x, stopped.x);
+  EXPECT_EQ(later.y, stopped.y);
+  // A last turn: once its event is in, every event before it is too; none said "arrived".
+  wheels.turn_to(0);
+  clock_.advance_by(0ms);
+  ASSERT_TRUE(heading_reported(0));
+  std::lock_guard lock(mutex);
+  for (const auto& e : positions) EXPECT_FALSE(e.arrived) << e.x << ", " << e.y;
 }
 
 TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {

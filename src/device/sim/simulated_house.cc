@@ -11,7 +11,7 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   comm.logger = options_.logger;
   communicator_ = std::make_unique<planet::Communicator>(comm);
   manager_ = std::make_unique<DeviceManager>(*communicator_);
-  const SimContext context{*world_, *communicator_};
+  const SimContext context{*world_, *communicator_, options_.effects};
   for (const auto& spec : world_->house().devices) {
     if (options_.devices.empty() || options_.devices.contains(spec.id)) {
       manager_->add(make_sim_device(spec, context));

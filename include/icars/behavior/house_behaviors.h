@@ -1,0 +1,52 @@
+// The behaviors of a smart home with a robotic mediator (ICARS paper 5.3, Table 6; Fig. 11b):
+// what the paper's application — and applications like it — are composed from in a policy.
+//
+//   Sense              propagates the events of sensor services (occupancy, speech, motion...)
+//   GoToUser           finds the user with the robot's camera and drives to them
+//   VoiceTVControl     voice commands → TV (power, channel, volume)
+//   VoiceAudioControl  voice commands → the robot's speaker (music, volume)
+//   LookAtSound        turns the robot towards sounds (Fig. 11b)
+//   MoodControl        lights off, calm music for a while
+//   PatrolHome         drives a round of waypoints, reporting motion it sees
+//   GoTo, Speak, SetLights   single actions, for composing other applications
+//
+// register_house_behaviors() adds them all, with their declared parameters, to a registry.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "icars/behavior/behavior.h"
+#include "icars/behavior/registry.h"
+#include "icars/service/adaptor.h"
+#include "icars/service/composite.h"
+
+namespace icars::behavior::house {
+
+void register_house_behaviors(BehaviorRegistry& registry);
+
+// Fig. 11b: binds the robot's wheels and sound sensor at entry; on every sound turns the
+// robot towards where it came from.
+class LookAtSound : public Behavior {
+ public:
+  explicit LookAtSound(const Params& p) : min_level_db_(p.number("min_level_db")) {}
+
+ protected:
+  void entry() override {
+    wheels_ = require<service::NavigationService>(of_type("Navigation"));
+    listen(require<service::SoundSensor>(of_type("SoundSensor")));
+  }
+  void handle_event(const Event& e) override {
+    if (e.type() == "SoundEvent" && e.get<double>("level_db") >= min_level_db_) {
+      const double direction = e.get<double>("direction");
+      invoke(*wheels_, "turn_to", [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
+    }
+  }
+
+ private:
+  double min_level_db_;
+  std::shared_ptr<service::NavigationService> wheels_;
+};
+
+}  // namespace icars::behavior::house

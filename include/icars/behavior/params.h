@@ -1,0 +1,71 @@
+// Behavior parameters: what a policy file supplies to a behavior factory, declared by each
+// behavior type (like the ports of a BehaviorTree.CPP node) so that a policy is checked —
+// unknown names, missing values, values of the wrong kind — before anything runs.
+#pragma once
+
+#include <map>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "icars/sim/time.h"
+
+namespace icars::behavior {
+
+enum class ParamType { string, number, integer, boolean, duration, time_of_day, list };
+std::string_view to_string(ParamType type);
+
+struct ParamSpec {
+  std::string name;
+  ParamType type = ParamType::string;
+  std::optional<std::string> default_value;  // nullopt: required
+  std::string doc;
+};
+
+// ParamSpec builders: param("track", ParamType::string, "calm", "what to play").
+ParamSpec param(std::string name, ParamType type, std::optional<std::string> default_value,
+                std::string doc);
+
+class ParamError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Converts `text` to the type, or throws ParamError saying what a value of that type looks like.
+// durations: "500ms", "30s", "5min", "2h" (a bare number is seconds); times of day: "21:30";
+// booleans: true/false/yes/no/on/off; lists: comma-separated, blanks trimmed, empty items dropped.
+double parse_number(std::string_view name, std::string_view text);
+long long parse_integer(std::string_view name, std::string_view text);
+bool parse_boolean(std::string_view name, std::string_view text);
+sim::SimTime parse_duration(std::string_view name, std::string_view text);
+sim::SimTime parse_time_param(std::string_view name, std::string_view text);
+std::vector<std::string> parse_list(std::string_view text);
+// Checks `text` against `type`; throws ParamError.
+void check_param(std::string_view name, ParamType type, std::string_view text);
+
+// The values given to one behavior, with the declared defaults filled in.
+class Params {
+ public:
+  Params() = default;
+  explicit Params(std::map<std::string, std::string, std::less<>> values) : values_(std::move(values)) {}
+
+  bool has(std::string_view name) const { return values_.find(name) != values_.end(); }
+  // Each throws ParamError when the parameter is absent or not of the type.
+  const std::string& string(std::string_view name) const;
+  double number(std::string_view name) const;
+  long long integer(std::string_view name) const;
+  bool boolean(std::string_view name) const;
+  sim::SimTime duration(std::string_view name) const;
+  sim::SimTime time_of_day(std::string_view name) const;
+  std::vector<std::string> list(std::string_view name) const;
+
+  const std::map<std::string, std::string, std::less<>>& values() const { return values_; }
+  void set(std::string name, std::string value) { values_[std::move(name)] = std::move(value); }
+
+ private:
+  std::map<std::string, std::string, std::less<>> values_;
+};
+
+}  // namespace icars::behavior

@@ -1,0 +1,47 @@
+// A picture of a house and of what happened in it: an SVG plan view with the rooms, walls and
+// doors, furniture, waypoints and static devices, the robots' and users' tracks over a run,
+// and marks for moments worth pointing at ("RestMode", "found user1"). For reading a run by
+// eye, in a browser or a report; nothing reads it back.
+//
+// The plan is drawn at a fixed scale (kSvgPixelsPerMetre) with y up as in the house frame, so
+// plots of the same house line up. Every label is escaped, so any name or text may be shown.
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "icars/sim/house.h"
+#include "icars/sim/time.h"
+
+namespace icars::sim {
+
+inline constexpr double kSvgPixelsPerMetre = 80.0;
+
+struct PlotTrack {  // a moving thing's positions over the run, in time order
+  std::string name;  // "robot1", "user1"
+  std::vector<std::pair<SimTime, Point>> points;
+};
+
+struct PlotMark {  // something worth pointing at: "RestMode", "found user1"
+  SimTime time{0};
+  Point at;
+  std::string label;
+};
+
+struct PlotData {
+  std::string title;  // "" shows the house's name
+  std::vector<PlotTrack> robots;
+  std::vector<PlotTrack> users;
+  std::vector<PlotMark> marks;
+};
+
+// A complete, well-formed SVG document (UTF-8). Each robot track is a polyline of class
+// "robot-track" with attribute data-name, its points in SVG pixels; empty tracks draw nothing
+// but keep their legend entry.
+std::string render_svg(const House& house, const PlotData& data);
+
+// Writes render_svg() to `path`; throws std::runtime_error naming the path when it cannot.
+void write_svg(const std::string& path, const House& house, const PlotData& data);
+
+}  // namespace icars::sim

@@ -1,0 +1,585 @@
+// The smart-home behaviors. Each one is an ECA behavior: entry binds services and subscribes,
+// handle_event holds its rules, every service call is asynchronous (the runtime never waits on
+// the network), and whatever it holds is released at exit by the behavior model.
+#include "icars/behavior/house_behaviors.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <set>
+
+namespace icars::behavior::house {
+
+namespace s = icars::service;
+
+namespace {
+
+std::string lower(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return text;
+}
+
+bool mentions(const std::string& text, std::string_view words) { return text.find(words) != std::string::npos; }
+
+// The first integer in `text` ("channel 5" → 5).
+std::optional<int> number_in(const std::string& text) {
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    if (!std::isdigit(static_cast<unsigned char>(text[i]))) continue;
+    int v = 0;
+    for (; i < text.size() && std::isdigit(static_cast<unsigned char>(text[i])) && v < 100000; ++i) {
+      v = v * 10 + (text[i] - '0');
+    }
+    return v;
+  }
+  return std::nullopt;
+}
+
+// --- Sense ----------------------------------------------------------------------------------------
+
+// Propagates the events of every available sensor service of a type (optionally in one room).
+class Sense final : public Behavior {
+ public:
+  explicit Sense(const Params& p)
+      : type_(p.string("service")), room_(p.string("room")), report_current_(p.boolean("report_current")) {}
+
+ protected:
+  void entry() override {
+    auto query = of_type(type_);
+    if (!room_.empty()) query.in_room(room_);
+    const auto sensors = services().find(query.available());
+    std::size_t bound = 0;
+    for (const auto& sensor : sensors) bound += bind(sensor) ? 1u : 0u;
+    if (bound == 0) throw BehaviorError(fmt::format("no available {} service{} to sense", type_,
+                                                    room_.empty() ? "" : " in the " + room_));
+  }
+  void handle_event(const Event& e) override { propagate(e); }
+
+ private:
+  bool bind(const std::shared_ptr<s::Service>& sensor) {
+    if (auto o = std::dynamic_pointer_cast<s::OccupancyService>(sensor)) {
+      listen(o);
+      if (report_current_) report_occupancy(o);
+      return true;
+    }
+    if (auto m = std::dynamic_pointer_cast<s::MotionSensorService>(sensor)) return listen(m), true;
+    if (auto sp = std::dynamic_pointer_cast<s::SpeechSensor>(sensor)) return listen(sp), true;
+    if (auto so = std::dynamic_pointer_cast<s::SoundSensor>(sensor)) return listen(so), true;
+    if (auto n = std::dynamic_pointer_cast<s::NavigationService>(sensor)) return listen(n), true;
+    if (auto u = std::dynamic_pointer_cast<s::UserLocator>(sensor)) return listen(u), true;
+    return false;
+  }
+  // The state now, as the sensor would have reported it when it last changed.
+  void report_occupancy(const std::shared_ptr<s::OccupancyService>& sensor) {
+    invoke(*sensor, "furniture", [&](auto done) { sensor->proxy().furniture_async(done); },
+           [this, sensor](std::exception_ptr e, std::string furniture = {}) {
+             if (e) return;
+             invoke(*sensor, "occupied", [&](auto done) { sensor->proxy().occupied_async(done); },
+                    [this, sensor, furniture](std::exception_ptr e2, bool occupied = false) {
+                      if (e2) return;
+                      home::OccupancyEvent current;
+                      current.device = sensor->attributes().device;
+                      current.furniture = furniture;
+                      current.occupied = occupied;
+                      current.time_ms = now().count();
+                      propagate(rename_event(planet::to_event(current)));
+                    });
+           });
+  }
+  static Event rename_event(Event e) {
+    Event out("OccupancyEvent");
+    for (const auto& [name, value] : e.items()) out.put(name, value);
+    return out;
+  }
+
+  std::string type_;
+  std::string room_;
+  bool report_current_;
+};
+
+// --- Navigation helpers ---------------------------------------------------------------------------
+
+// A behavior that drives the robot: go_to / go_to_waypoint and waiting for the arrival event.
+class Driving : public Behavior {
+ protected:
+  void bind_wheels(const std::string& robot) {
+    auto query = of_type("Navigation");
+    if (!robot.empty()) query.on_device(robot + "_wheels");
+    wheels_ = require<s::NavigationService>(query);
+    listen(wheels_);
+  }
+  // Drives to a named waypoint, furniture or room; `arrived(ok)` when it gets there (ok) or stops
+  // short (not ok). A target the robot cannot reach calls unreachable(reason).
+  void drive_to(const std::string& target, std::function<void(bool)> arrived,
+                std::function<void(std::string)> unreachable) {
+    arrived_ = std::move(arrived);
+    invoke(*wheels_, fmt::format("go_to_waypoint({})", target),
+           [&](auto done) { wheels_->proxy().go_to_waypoint_async(target, done); },
+           [this, unreachable](std::exception_ptr e, double = 0) {
+             if (e) {
+               arrived_ = nullptr;
+               unreachable(describe(e));
+             }
+           });
+  }
+  void drive_to(double x, double y, std::function<void(bool)> arrived, std::function<void(std::string)> unreachable) {
+    arrived_ = std::move(arrived);
+    home::Pose pose;
+    pose.x = x;
+    pose.y = y;
+    pose.theta = 0;
+    invoke(*wheels_, fmt::format("go_to({:.1f}, {:.1f})", x, y),
+           [&](auto done) { wheels_->proxy().go_to_async(pose, done); },
+           [this, unreachable](std::exception_ptr e, double = 0) {
+             if (e) {
+               arrived_ = nullptr;
+               unreachable(describe(e));
+             }
+           });
+  }
+  // Position events: the end of a drive.
+  bool on_position(const Event& e) {
+    if (e.type() != "PositionEvent" || !arrived_) return false;
+    if (e.get<bool>("moving")) return true;
+    auto done = std::move(arrived_);
+    arrived_ = nullptr;
+    done(e.get<bool>("arrived"));
+    return true;
+  }
+  void exit() override {
+    if (wheels_ && wheels_->available() && wheels_->proxy().bound()) {
+      // Halted mid-drive: the robot stops rather than finish a trip nobody wants.
+      if (arrived_) invoke(*wheels_, "stop", [&](auto done) { wheels_->proxy().stop_async(done); }, [](std::exception_ptr) {});
+    }
+  }
+
+  std::shared_ptr<s::NavigationService> wheels_;
+  std::function<void(bool)> arrived_;
+};
+
+// --- GoToUser -------------------------------------------------------------------------------------
+
+// Finds the user with the robot's camera (UserLocator), searching the given rooms or waypoints
+// in turn, and drives to them. Succeeds next to the user (propagating ReachedUser), fails when
+// the user is nowhere to be found or cannot be reached in time.
+class GoToUser final : public Driving {
+ public:
+  explicit GoToUser(const Params& p)
+      : user_(p.string("user")), search_(p.list("search")), robot_(p.string("robot")), timeout_(p.duration("timeout")) {}
+
+ protected:
+  void entry() override {
+    bind_wheels(robot_);
+    locator_ = require<s::UserLocator>(of_type("UserLocator"));
+    if (search_.empty()) {
+      std::set<std::string> rooms;
+      for (const auto& service : services().all()) {
+        if (!service->attributes().room.empty()) rooms.insert(service->attributes().room);
+      }
+      search_.assign(rooms.begin(), rooms.end());
+    }
+    next_ = 0;
+    after(timeout_, [this] { fail(fmt::format("did not reach {} within {}", who(), format_duration(timeout_))); });
+    look();
+  }
+  void handle_event(const Event& e) override { on_position(e); }
+
+ private:
+  std::string who() const { return user_.empty() ? "the user" : user_; }
+  static std::string format_duration(sim::SimTime d) { return fmt::format("{} s", d.count() / 1000); }
+
+  void look() {
+    locator_->locate(guard([this](std::exception_ptr e, std::vector<s::UserLocation> seen) {
+      if (e) {
+        fail("could not look for the user: " + describe(e));
+        return;
+      }
+      for (const auto& u : seen) {
+        if (!user_.empty() && u.person != user_) continue;
+        note(fmt::format("sees {} at ({:.1f}, {:.1f})", u.person, u.x, u.y));
+        approach(u);
+        return;
+      }
+      search_next();
+    }));
+  }
+  void search_next() {
+    if (next_ >= search_.size()) {
+      fail(fmt::format("{} not found in {}", who(), fmt::join(search_, ", ")));
+      return;
+    }
+    const auto place = search_[next_++];
+    drive_to(place, [this](bool) { look(); }, [this, place](std::string why) {
+      note(fmt::format("cannot search {}: {}", place, why));
+      search_next();
+    });
+  }
+  void approach(const s::UserLocation& u) {
+    drive_to(u.x, u.y,
+             [this, u](bool ok) {
+               if (!ok) {
+                 fail(fmt::format("stopped before reaching {}", u.person));
+                 return;
+               }
+               Event reached("ReachedUser");
+               reached.set("user", u.person);
+               reached.set("x", u.x);
+               reached.set("y", u.y);
+               propagate(std::move(reached));
+               succeed();
+             },
+             [this, u](std::string why) { fail(fmt::format("cannot reach {}: {}", u.person, why)); });
+  }
+
+  std::string user_;
+  std::vector<std::string> search_;
+  std::string robot_;
+  sim::SimTime timeout_;
+  std::shared_ptr<s::UserLocator> locator_;
+  std::size_t next_ = 0;
+};
+
+// --- GoTo -----------------------------------------------------------------------------------------
+
+class GoTo final : public Driving {
+ public:
+  explicit GoTo(const Params& p) : target_(p.string("target")), robot_(p.string("robot")) {}
+
+ protected:
+  void entry() override {
+    bind_wheels(robot_);
+    drive_to(target_, [this](bool ok) { ok ? succeed() : fail("stopped before reaching " + target_); },
+             [this](std::string why) { fail(why); });
+  }
+  void handle_event(const Event& e) override { on_position(e); }
+
+ private:
+  std::string target_;
+  std::string robot_;
+};
+
+// --- PatrolHome -----------------------------------------------------------------------------------
+
+// Drives a round of waypoints (Table 6: Navigation, MotionSensor); propagates WaypointReached
+// at each and MotionDetected for motion the house's motion sensors report meanwhile. A waypoint
+// it cannot reach is skipped; the patrol fails if it reached none.
+class PatrolHome final : public Driving {
+ public:
+  explicit PatrolHome(const Params& p)
+      : waypoints_(p.list("waypoints")), rounds_(static_cast<int>(p.integer("rounds"))), robot_(p.string("robot")) {}
+
+ protected:
+  void entry() override {
+    if (waypoints_.empty()) throw BehaviorError("no waypoints to patrol");
+    bind_wheels(robot_);
+    for (const auto& m : services().find(of_type("MotionSensor").available())) {
+      if (auto sensor = std::dynamic_pointer_cast<s::MotionSensorService>(m)) listen(sensor);
+    }
+    next_ = 0;
+    round_ = 0;
+    reached_ = 0;
+    skipped_.clear();
+    visit_next();
+  }
+  void handle_event(const Event& e) override {
+    if (on_position(e)) return;
+    if (e.type() == "MotionEvent" && e.get<bool>("motion")) {
+      Event motion("MotionDetected");
+      motion.set("room", e.get<std::string>("room"));
+      motion.set("device", e.get<std::string>("device"));
+      propagate(std::move(motion));
+    }
+  }
+
+ private:
+  void visit_next() {
+    if (next_ == waypoints_.size()) {
+      next_ = 0;
+      if (++round_ == rounds_) {
+        if (reached_ == 0) {
+          fail(fmt::format("reached no waypoint (skipped {})", fmt::join(skipped_, ", ")));
+        } else {
+          succeed();
+        }
+        return;
+      }
+    }
+    const auto waypoint = waypoints_[next_];
+    const auto index = next_++;
+    drive_to(waypoint,
+             [this, waypoint, index](bool ok) {
+               if (ok) {
+                 ++reached_;
+                 Event reached("WaypointReached");
+                 reached.set("waypoint", waypoint);
+                 reached.set("index", static_cast<std::int32_t>(index));
+                 propagate(std::move(reached));
+               } else {
+                 skipped_.push_back(waypoint);
+               }
+               visit_next();
+             },
+             [this, waypoint](std::string why) {
+               note(fmt::format("skips {}: {}", waypoint, why));
+               skipped_.push_back(waypoint);
+               visit_next();
+             });
+  }
+
+  std::vector<std::string> waypoints_;
+  int rounds_;
+  std::string robot_;
+  std::size_t next_ = 0;
+  int round_ = 0;
+  int reached_ = 0;
+  std::vector<std::string> skipped_;
+};
+
+// --- Voice control --------------------------------------------------------------------------------
+
+// Subscribes to every speech sensor; a subclass says what the words do.
+class VoiceControl : public Behavior {
+ protected:
+  void listen_to_speech() {
+    const auto sensors = services().find(of_type("SpeechSensor").available());
+    if (sensors.empty()) throw BehaviorError("no available SpeechSensor service");
+    for (const auto& sensor : sensors) listen(std::static_pointer_cast<s::SpeechSensor>(sensor));
+  }
+  void handle_event(const Event& e) override {
+    if (e.type() == "SpeechEvent") on_command(lower(e.get<std::string>("text")));
+  }
+  virtual void on_command(const std::string& text) = 0;
+};
+
+class VoiceTVControl final : public VoiceControl {
+ public:
+  explicit VoiceTVControl(const Params& p) : room_(p.string("room")), step_(static_cast<int>(p.integer("volume_step"))) {}
+
+ protected:
+  void entry() override {
+    auto query = of_type("TVControl");
+    if (!room_.empty()) query.in_room(room_);
+    tv_ = require<s::TVControlService>(query);
+    listen_to_speech();
+  }
+  void on_command(const std::string& text) override {
+    if (!mentions(text, "tv") && !mentions(text, "channel") && !mentions(text, "volume")) return;
+    auto& tv = *tv_;
+    auto report = [this](std::exception_ptr e, auto&&...) {
+      if (e) note("the TV did not do it: " + describe(e));
+    };
+    if (mentions(text, "turn on") || mentions(text, "tv on")) {
+      invoke(tv, "set_power(true)", [&](auto done) { tv.proxy().set_power_async(true, done); }, report);
+    } else if (mentions(text, "turn off") || mentions(text, "tv off")) {
+      invoke(tv, "set_power(false)", [&](auto done) { tv.proxy().set_power_async(false, done); }, report);
+    } else if (mentions(text, "channel")) {
+      if (auto n = number_in(text)) {
+        invoke(tv, fmt::format("set_channel({})", *n), [&](auto done) { tv.proxy().set_channel_async(*n, done); }, report);
+      }
+    } else if (mentions(text, "volume")) {
+      const int delta = mentions(text, "up") ? step_ : mentions(text, "down") ? -step_ : 0;
+      if (delta == 0) return;
+      // Read, then write: the TV's own state is the truth (someone may have used the remote).
+      invoke(tv, "state", [&](auto done) { tv.proxy().state_async(done); },
+             [this, delta, report](std::exception_ptr e, home::TVState state = {}) {
+               if (e || !state.on) return;
+               const int volume = std::clamp(state.volume + delta, 0, 100);
+               invoke(*tv_, fmt::format("set_volume({})", volume),
+                      [&](auto done) { tv_->proxy().set_volume_async(volume, done); }, report);
+             });
+    }
+  }
+
+ private:
+  std::string room_;
+  int step_;
+  std::shared_ptr<s::TVControlService> tv_;
+};
+
+class VoiceAudioControl final : public VoiceControl {
+ public:
+  explicit VoiceAudioControl(const Params& p)
+      : track_(p.string("track")), step_(static_cast<int>(p.integer("volume_step"))) {}
+
+ protected:
+  void entry() override {
+    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    listen_to_speech();
+  }
+  void on_command(const std::string& text) override {
+    auto& sp = *speaker_;
+    auto report = [this](std::exception_ptr e, auto&&...) {
+      if (e) note("the speaker did not do it: " + describe(e));
+    };
+    if (mentions(text, "play") && (mentions(text, "music") || mentions(text, "song"))) {
+      invoke(sp, fmt::format("play({})", track_), [&](auto done) { sp.proxy().play_async(track_, done); }, report);
+    } else if (text == "stop" || mentions(text, "stop music") || mentions(text, "stop the music")) {
+      invoke(sp, "stop", [&](auto done) { sp.proxy().stop_async(done); }, report);
+    } else if (mentions(text, "volume") && !mentions(text, "tv")) {
+      const int delta = mentions(text, "up") ? step_ : mentions(text, "down") ? -step_ : 0;
+      if (delta == 0) return;
+      invoke(sp, "state", [&](auto done) { sp.proxy().state_async(done); },
+             [this, delta, report](std::exception_ptr e, home::SpeakerState state = {}) {
+               if (e || state.playing.empty()) return;
+               const int volume = std::clamp(state.volume + delta, 0, 100);
+               invoke(*speaker_, fmt::format("set_volume({})", volume),
+                      [&](auto done) { speaker_->proxy().set_volume_async(volume, done); }, report);
+             });
+    }
+  }
+
+ private:
+  std::string track_;
+  int step_;
+  std::shared_ptr<s::SpeakerService> speaker_;
+};
+
+// --- MoodControl ----------------------------------------------------------------------------------
+
+// Turns the lights off (or dims them), plays calm music for a while, then stops it and succeeds.
+class MoodControl final : public Behavior {
+ public:
+  explicit MoodControl(const Params& p)
+      : rooms_(p.list("rooms")), intensity_(static_cast<int>(p.integer("intensity"))), track_(p.string("track")),
+        volume_(static_cast<int>(p.integer("volume"))), duration_(p.duration("duration")) {}
+
+ protected:
+  void entry() override {
+    for (const auto& service : services().find(of_type("LightControl").available())) {
+      auto light = std::static_pointer_cast<s::LightService>(service);
+      if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;
+      if (intensity_ == 0) {
+        invoke(*light, "set_power(false)", [&](auto done) { light->proxy().set_power_async(false, done); }, tolerate());
+      } else {
+        invoke(*light, fmt::format("set_intensity({})", intensity_),
+               [&](auto done) { light->proxy().set_intensity_async(intensity_, done); }, tolerate());
+      }
+    }
+    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    invoke(*speaker_, fmt::format("set_volume({})", volume_),
+           [&](auto done) { speaker_->proxy().set_volume_async(volume_, done); }, tolerate());
+    invoke(*speaker_, fmt::format("play({})", track_), [&](auto done) { speaker_->proxy().play_async(track_, done); });
+    playing_ = true;
+    after(duration_, [this] {
+      invoke(*speaker_, "stop", [&](auto done) { speaker_->proxy().stop_async(done); },
+             [this](std::exception_ptr e) {
+               playing_ = false;
+               e ? fail(call_error("stop", e)) : succeed();
+             });
+    });
+  }
+  void exit() override {
+    // Halted while the music plays: stop it (nobody is waiting for the reply).
+    if (playing_ && speaker_) {
+      playing_ = false;
+      invoke(*speaker_, "stop", [&](auto done) { speaker_->proxy().stop_async(done); }, [](std::exception_ptr) {});
+    }
+  }
+
+ private:
+  std::function<void(std::exception_ptr)> tolerate() {
+    return [this](std::exception_ptr e) {
+      if (e) note("could not set the mood: " + describe(e));
+    };
+  }
+  std::vector<std::string> rooms_;
+  int intensity_;
+  std::string track_;
+  int volume_;
+  sim::SimTime duration_;
+  std::shared_ptr<s::SpeakerService> speaker_;
+  bool playing_ = false;
+};
+
+// --- Single actions -------------------------------------------------------------------------------
+
+class Speak final : public Behavior {
+ public:
+  explicit Speak(const Params& p) : text_(p.string("text")) {}
+
+ protected:
+  void entry() override {
+    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    invoke(*speaker_, fmt::format("speak(\"{}\")", text_), [&](auto done) { speaker_->proxy().speak_async(text_, done); },
+           [this](std::exception_ptr e) { e ? fail(call_error("speak", e)) : succeed(); });
+  }
+
+ private:
+  std::string text_;
+  std::shared_ptr<s::SpeakerService> speaker_;
+};
+
+class SetLights final : public Behavior {
+ public:
+  explicit SetLights(const Params& p) : rooms_(p.list("rooms")), on_(p.boolean("on")) {}
+
+ protected:
+  void entry() override {
+    auto lights = services().find(of_type("LightControl").available());
+    pending_ = 0;
+    for (const auto& service : lights) {
+      auto light = std::static_pointer_cast<s::LightService>(service);
+      if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;
+      ++pending_;
+      invoke(*light, fmt::format("set_power({})", on_), [&](auto done) { light->proxy().set_power_async(on_, done); },
+             [this](std::exception_ptr e) {
+               if (e) failed_ = true;
+               if (--pending_ == 0) failed_ ? fail("a light did not switch") : succeed();
+             });
+    }
+    if (pending_ == 0) throw BehaviorError("no available light to switch");
+  }
+
+ private:
+  std::vector<std::string> rooms_;
+  bool on_;
+  int pending_ = 0;
+  bool failed_ = false;
+};
+
+}  // namespace
+
+void register_house_behaviors(BehaviorRegistry& registry) {
+  using T = ParamType;
+  registry.add<Sense>("Sense", "propagates the events of sensor services",
+                      {param("service", T::string, std::nullopt,
+                             "service type: OccupancySensor, SpeechSensor, MotionSensor, SoundSensor, Navigation, UserLocator"),
+                       param("room", T::string, "", "only sensors in this room"),
+                       param("report_current", T::boolean, "false",
+                             "occupancy sensors: also report the current state at entry")});
+  registry.add<GoToUser>("GoToUser", "finds the user with the robot's camera and drives to them",
+                         {param("user", T::string, "", "who to go to (default: whoever the camera sees first)"),
+                          param("search", T::list, "", "rooms or waypoints to search in order (default: every room)"),
+                          param("robot", T::string, "", "which robot (default: the first)"),
+                          param("timeout", T::duration, "5min", "fail if not next to the user by then")});
+  registry.add<GoTo>("GoTo", "drives the robot to a waypoint, furniture or room",
+                     {param("target", T::string, std::nullopt, "where"),
+                      param("robot", T::string, "", "which robot (default: the first)")});
+  registry.add<PatrolHome>("PatrolHome", "drives a round of waypoints, reporting motion",
+                           {param("waypoints", T::list, std::nullopt, "the round, in order"),
+                            param("rounds", T::integer, "1", "how many rounds"),
+                            param("robot", T::string, "", "which robot (default: the first)")});
+  registry.add<VoiceTVControl>("VoiceTVControl", "controls the TV by voice: turn on/off the TV, channel N, volume up/down",
+                               {param("room", T::string, "", "the TV's room (default: any)"),
+                                param("volume_step", T::integer, "5", "volume change per command")});
+  registry.add<VoiceAudioControl>("VoiceAudioControl", "controls the speaker by voice: play music, stop, volume up/down",
+                                  {param("track", T::string, "relaxing music", "what 'play music' plays"),
+                                   param("volume_step", T::integer, "5", "volume change per command")});
+  registry.add<LookAtSound>("LookAtSound", "turns the robot towards sounds",
+                            {param("min_level_db", T::number, "45", "ignore quieter sounds")});
+  registry.add<MoodControl>("MoodControl", "lights off or dimmed, calm music for a while",
+                            {param("rooms", T::list, "", "lights of these rooms (default: all)"),
+                             param("intensity", T::integer, "0", "0: off, else dim to this percent"),
+                             param("track", T::string, "calm music", "what to play"),
+                             param("volume", T::integer, "20", "at this volume"),
+                             param("duration", T::duration, "15min", "for this long")});
+  registry.add<Speak>("Speak", "says something through the robot's speaker",
+                      {param("text", T::string, std::nullopt, "what to say")});
+  registry.add<SetLights>("SetLights", "switches lights on or off",
+                          {param("on", T::boolean, std::nullopt, "on or off"),
+                           param("rooms", T::list, "", "lights of these rooms (default: all)")});
+}
+
+}  // namespace icars::behavior::house

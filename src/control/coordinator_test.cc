@@ -1,0 +1,246 @@
+// The Coordinator running statecharts of tasks from policy text: task events drive
+// transitions, hierarchical states, guards, failure and timeout transitions, and leaving a
+// state destroys its task's whole behavior tree. Time is a SimClock advanced by hand.
+#include <gtest/gtest.h>
+
+#include "icars/behavior/composite.h"
+#include "icars/control/collaboration.h"
+#include "icars/control/coordinator.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+namespace b = icars::behavior;
+namespace c = icars::control;
+using icars::sim::SimTime;
+using namespace std::chrono_literals;
+
+namespace {
+
+// Fails after `after`.
+class FailLater final : public b::Behavior {
+ public:
+  explicit FailLater(const b::Params& p) : after_(p.duration("after")) {}
+
+ protected:
+  void entry() override {
+    after(after_, [this] { fail("gave up"); });
+  }
+
+ private:
+  SimTime after_;
+};
+
+// Counts live instances, so tests see trees being destroyed.
+std::atomic<int> g_alive{0};
+class Alive final : public b::Behavior {
+ public:
+  explicit Alive(const b::Params&) { ++g_alive; }
+  ~Alive() override { --g_alive; }
+};
+
+struct Fixture {
+  Fixture() : runtime(clock), env{runtime, services, trace} {
+    b::register_generic_behaviors(registry);
+    registry.add<FailLater>("FailLater", "fails later", {b::param("after", b::ParamType::duration, "1min", "")});
+    registry.add<Alive>("Alive", "runs until halted");
+    trace.add_sink(log.sink());
+  }
+  std::unique_ptr<c::Coordinator> start(const std::string& xml) {
+    auto parsed = c::parse_policy(xml, "test.xml", registry);
+    auto coordinator = c::PolicyFactory(registry).create(parsed.policy, env);
+    coordinator->start();
+    settle();
+    return coordinator;
+  }
+  void advance(SimTime d) {
+    clock.advance_by(d);
+    settle();
+  }
+  void settle() { ASSERT_TRUE(runtime.drain(10s)); }
+  std::vector<std::string> transitions() {
+    std::vector<std::string> out;
+    for (const auto& r : log.of_kind("transition")) out.push_back(r.text);
+    return out;
+  }
+
+  icars::sim::SimClock clock{SimTime{0}};
+  b::Runtime runtime;
+  icars::service::ServiceContainer services;
+  b::Trace trace;
+  b::TraceLog log;
+  b::Environment env;
+  b::BehaviorRegistry registry;
+};
+
+}  // namespace
+
+TEST(Coordinator, TaskEventsMoveTheStatechartAndLeavingAStateDestroysItsTask) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Watch" events="Ring">
+        <concurrent>
+          <behavior type="Alive"/>
+          <behavior type="Emit" event="Ring" delay="10min"/>
+        </concurrent>
+      </task>
+      <task name="Answer" events="Hangup">
+        <concurrent>
+          <behavior type="Alive"/>
+          <behavior type="Alive"/>
+          <behavior type="Emit" event="Hangup" delay="5min"/>
+        </concurrent>
+      </task>
+      <statechart initial="Idle">
+        <state name="Idle" task="Watch"><transition event="Ring" target="Talking"/></state>
+        <state name="Talking" task="Answer"><transition event="Hangup" target="Idle"/></state>
+      </statechart>
+    </policy>)xml");
+  EXPECT_EQ(coordinator->current(), "Idle");
+  EXPECT_EQ(g_alive.load(), 1);
+  f.advance(10min);
+  EXPECT_EQ(coordinator->current(), "Talking");
+  EXPECT_EQ(g_alive.load(), 2);  // Watch's tree is gone, Answer's is running
+  f.advance(5min);
+  EXPECT_EQ(coordinator->current(), "Idle");
+  EXPECT_EQ(g_alive.load(), 1);
+  EXPECT_EQ(f.transitions(), (std::vector<std::string>{"Idle -> Talking on Ring", "Talking -> Idle on Hangup"}));
+  coordinator->stop();
+  EXPECT_EQ(g_alive.load(), 0);
+}
+
+TEST(Coordinator, GuardsChooseBetweenTransitionsOnTheSameEvent) {
+  Fixture f;
+  f.clock.advance_to(icars::sim::at_time(0, 20, 0));
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Tick" events="Tick">
+        <sequential repeat="forever"><behavior type="Emit" event="Tick" delay="1h"/></sequential>
+      </task>
+      <statechart>
+        <state name="Day" task="Tick">
+          <transition event="Tick" target="Night" guard="between(time, 22:00, 06:00)"/>
+          <transition event="Tick" target="Day" guard="time &lt; 22:00 and time &gt;= 06:00"/>
+        </state>
+        <state name="Night"/>
+      </statechart>
+    </policy>)xml");
+  f.advance(1h);  // 21:00: self-transition (re-enters Day)
+  EXPECT_EQ(coordinator->current(), "Day");
+  f.advance(1h);  // 22:00
+  EXPECT_EQ(coordinator->current(), "Night");
+  EXPECT_EQ(f.transitions(), (std::vector<std::string>{"Day -> Day on Tick", "Day -> Night on Tick"}));
+}
+
+TEST(Coordinator, AFailedTaskTakesTheFailureTransitionInheritedFromItsParentState) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Try" events=""><behavior type="FailLater" after="3min"/></task>
+      <task name="Rest" events=""><behavior type="Alive"/></task>
+      <statechart initial="Working">
+        <state name="Working" initial="Trying">
+          <transition event="failed" target="Recovering"/>
+          <state name="Trying" task="Try"/>
+        </state>
+        <state name="Recovering" task="Rest"/>
+      </statechart>
+    </policy>)xml");
+  EXPECT_EQ(coordinator->configuration(), (std::vector<std::string>{"Working", "Trying"}));
+  f.advance(3min);
+  EXPECT_EQ(coordinator->configuration(), std::vector<std::string>{"Recovering"});
+  ASSERT_EQ(f.transitions().size(), 1u);
+  EXPECT_EQ(f.transitions()[0], "Trying -> Recovering on failed (FailLater failed: gave up)");
+  coordinator->stop();
+}
+
+TEST(Coordinator, AStuckTaskFailsAtItsTimeout) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Stuck" timeout="30min"><behavior type="Alive"/></task>
+      <statechart>
+        <state name="Waiting" task="Stuck"><transition event="failed" target="Giving_up"/></state>
+        <state name="Giving_up"/>
+      </statechart>
+    </policy>)xml");
+  f.advance(29min);
+  EXPECT_EQ(coordinator->current(), "Waiting");
+  f.advance(1min);
+  EXPECT_EQ(coordinator->current(), "Giving_up");
+  EXPECT_EQ(g_alive.load(), 0);
+}
+
+TEST(Coordinator, ADoneTaskWithoutTransitionLeavesTheStateIdleAndAnUnhandledFailureIsReported) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Once"><behavior type="Wait" duration="1min"/></task>
+      <task name="Bad"><behavior type="FailLater" after="1min"/></task>
+      <statechart>
+        <state name="A" task="Once"><transition event="done" target="B"/></state>
+        <state name="B" task="Bad"/>
+      </statechart>
+    </policy>)xml");
+  f.advance(1min);
+  EXPECT_EQ(coordinator->current(), "B");
+  f.advance(1min);
+  EXPECT_EQ(coordinator->current(), "B");
+  bool reported = false;
+  for (const auto& r : f.log.of_kind("note")) {
+    reported |= r.text == "task Bad failed and no transition handles it: staying in B";
+  }
+  EXPECT_TRUE(reported);
+}
+
+TEST(Coordinator, TransitionsBetweenNestedStatesExitAndEnterOnlyWhatChanges) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Home" events=""><behavior type="Alive"/></task>
+      <task name="Step" events="Next"><behavior type="Emit" event="Next" delay="1min"/></task>
+      <statechart>
+        <state name="AtHome" task="Home">
+          <state name="One" task="Step"><transition event="Next" target="Two"/></state>
+          <state name="Two" task="Step"><transition event="Next" target="Out"/></state>
+        </state>
+        <state name="Out"/>
+      </statechart>
+    </policy>)xml");
+  EXPECT_EQ(coordinator->configuration(), (std::vector<std::string>{"AtHome", "One"}));
+  EXPECT_EQ(g_alive.load(), 1);
+  f.advance(1min);
+  EXPECT_EQ(coordinator->configuration(), (std::vector<std::string>{"AtHome", "Two"}));
+  int home_starts = 0;
+  for (const auto& r : f.log.of_kind("task")) home_starts += r.text == "task Home started";
+  EXPECT_EQ(home_starts, 1);  // the parent state's task kept running
+  f.advance(1min);
+  EXPECT_EQ(coordinator->configuration(), std::vector<std::string>{"Out"});
+  EXPECT_EQ(g_alive.load(), 0);
+}
+
+TEST(CollaborationManager, LoadsPoliciesByNameFromTheRepositoryAndKeepsTheRunningOneOnError) {
+  Fixture f;
+  const auto dir = std::filesystem::temp_directory_path() / ("icars_policies_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream(dir / "good.xml") << R"xml(<policy name="good"><task name="T"><behavior type="Alive"/></task>
+      <statechart><state name="S" task="T"/></statechart></policy>)xml";
+    std::ofstream(dir / "broken.xml") << R"xml(<policy name="broken"><statechart><state name="S" task="Nope"/></statechart></policy>)xml";
+  }
+  c::CollaborationManager manager(c::PolicyRepository(dir.string()), f.registry, f.env);
+  EXPECT_EQ(manager.repository().names(), (std::vector<std::string>{"broken", "good"}));
+  manager.run("good");
+  f.settle();
+  ASSERT_NE(manager.coordinator(), nullptr);
+  EXPECT_EQ(manager.coordinator()->current(), "S");
+  EXPECT_THROW(manager.run("broken"), c::PolicyError);
+  EXPECT_EQ(manager.coordinator()->policy().name, "good");
+  EXPECT_EQ(g_alive.load(), 1);
+  manager.stop();
+  EXPECT_EQ(g_alive.load(), 0);
+  std::filesystem::remove_all(dir);
+}
