@@ -17,6 +17,21 @@ std::string_view to_string(Status status) {
   return "?";
 }
 
+std::string describe_event(const Event& e) {
+  std::string out = e.type();
+  for (const auto& [name, value] : e.items()) {
+    std::string text;
+    if (value.is<std::string>()) text = value.as<std::string>();
+    else if (value.is<bool>()) text = value.as<bool>() ? "true" : "false";
+    else if (value.is<double>()) text = fmt::format("{:g}", value.as<double>());
+    else if (value.is<std::int32_t>()) text = std::to_string(value.as<std::int32_t>());
+    else if (value.is<std::int64_t>()) text = std::to_string(value.as<std::int64_t>());
+    else continue;
+    out += fmt::format(" {}={}", name, text);
+  }
+  return out;
+}
+
 Behavior::~Behavior() {
   // The derived part is gone, so exit() cannot run here: owners halt before destroying. What
   // the base holds (children, timers, subscriptions) is still released.

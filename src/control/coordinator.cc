@@ -71,7 +71,20 @@ void Task::stop() {
 
 void Task::child_event(b::Behavior&, const b::Event& event) {
   if (!running_) return;
-  if (std::find(spec_.events.begin(), spec_.events.end(), event.type()) != spec_.events.end()) raise(event);
+  const bool declared = std::find(spec_.events.begin(), spec_.events.end(), event.type()) != spec_.events.end();
+  b::TraceRecord r;
+  r.time = env_.runtime.now();
+  r.kind = "event";
+  r.source = spec_.name;
+  r.text = fmt::format("{}: {}", spec_.name, b::describe_event(event));
+  r.with("event", event.type()).with("task", spec_.name).with("task_event", declared);
+  for (const auto& [name, value] : event.items()) {
+    if (value.is<std::string>()) r.with(name, value.as<std::string>());
+    else if (value.is<bool>()) r.with(name, value.as<bool>());
+    else if (value.is<double>()) r.with(name, value.as<double>());
+  }
+  env_.trace.record(std::move(r));
+  if (declared) raise(event);
 }
 
 void Task::child_done(b::Behavior& root) {
@@ -226,6 +239,20 @@ void Coordinator::exit_to(Node* keep) {
 
 void Coordinator::on_task_event(const b::Event& event) {
   if (active_.empty()) return;
+  // A statechart that keeps transitioning without time passing (a task failing at entry whose
+  // failure transition leads back to it) would spin forever: after kMaxTransitionsPerInstant at
+  // one instant, events wait for time to move on.
+  const auto instant = env_.runtime.now();
+  if (instant != last_transition_at_) {
+    last_transition_at_ = instant;
+    transitions_this_instant_ = 0;
+  } else if (transitions_this_instant_ >= kMaxTransitionsPerInstant) {
+    if (transitions_this_instant_++ == kMaxTransitionsPerInstant) {
+      record("note", fmt::format("{} transitions at one instant: the statechart is looping; ignoring {} until time passes",
+                                 kMaxTransitionsPerInstant, event.type()), {});
+    }
+    return;
+  }
   b::ConditionScope scope;
   scope.now = env_.runtime.now();
   scope.variables.emplace("state", active_.back()->spec->name);
@@ -247,6 +274,7 @@ void Coordinator::on_task_event(const b::Event& event) {
       if (lca == target || lca == source) lca = lca->parent ? lca->parent : root_.get();
       const auto from = active_.back()->spec->name;
       ++transitions_;
+      ++transitions_this_instant_;
       const auto reason = event.has("reason") ? event.get<std::string>("reason") : std::string();
       record("transition",
              fmt::format("{} -> {} on {}{}", from, t.target, event.type(), reason.empty() ? "" : " (" + reason + ")"),

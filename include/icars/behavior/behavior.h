@@ -50,6 +50,9 @@ using planet::Event;
 enum class Status { idle, running, succeeded, failed, halted };
 std::string_view to_string(Status status);
 
+// "WaypointReached waypoint=door index=3": an event's type and its scalar properties.
+std::string describe_event(const Event& e);
+
 // What every behavior of an application sees.
 struct Environment {
   Runtime& runtime;

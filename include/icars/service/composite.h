@@ -114,8 +114,11 @@ class UserLocator final : public Service {
 // and a UserLocator per CameraFactory (with the first FaceRecognizer).
 class CompositeFactory {
  public:
+  // camera_max_age is wall-clock time: with a simulated house running at 1000x, 200 ms are minutes
+  // of simulated time and a robot that moved meanwhile would be shown an old room. By default
+  // only a capture in flight is shared.
   explicit CompositeFactory(ServiceContainer& container,
-                            std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(200));
+                            std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(0));
   ~CompositeFactory();
   CompositeFactory(const CompositeFactory&) = delete;
   CompositeFactory& operator=(const CompositeFactory&) = delete;

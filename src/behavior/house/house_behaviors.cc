@@ -39,7 +39,10 @@ std::optional<int> number_in(const std::string& text) {
 
 // --- Sense ----------------------------------------------------------------------------------------
 
-// Propagates the events of every available sensor service of a type (optionally in one room).
+// Propagates the events of every sensor service of a type (optionally in one room): those in
+// the container at entry, available or not (an adaptor's events flow again when its device
+// comes back), and those added while it runs. It never fails for lack of sensors: a house whose
+// device manager is still starting gets its sensors when they register.
 class Sense final : public Behavior {
  public:
   explicit Sense(const Params& p)
@@ -47,21 +50,34 @@ class Sense final : public Behavior {
 
  protected:
   void entry() override {
+    bound_.clear();
     auto query = of_type(type_);
     if (!room_.empty()) query.in_room(room_);
-    const auto sensors = services().find(query.available());
-    std::size_t bound = 0;
-    for (const auto& sensor : sensors) bound += bind(sensor) ? 1u : 0u;
-    if (bound == 0) throw BehaviorError(fmt::format("no available {} service{} to sense", type_,
-                                                    room_.empty() ? "" : " in the " + room_));
+    for (const auto& sensor : services().find(query)) bind_once(sensor);
+    if (bound_.empty()) note(fmt::format("waiting for a {} service", type_));
+    auto added = guard([this](std::shared_ptr<s::Service> service) {
+      if (service->type() == type_ && (room_.empty() || service->attributes().room == room_)) bind_once(service);
+    });
+    const auto watch = services().watch([added](const std::shared_ptr<s::Service>& service, const s::ServiceChange& change) mutable {
+      if (change == s::ServiceChange::added) added(service);
+    });
+    on_release([this, watch] { services().remove_watcher(watch); });
   }
   void handle_event(const Event& e) override { propagate(e); }
 
  private:
+  void bind_once(const std::shared_ptr<s::Service>& sensor) {
+    if (bound_.contains(sensor->id())) return;
+    if (bind(sensor)) {
+      bound_.insert(sensor->id());
+    } else {
+      note(fmt::format("cannot sense {}: {} publishes no events it knows", sensor->id(), sensor->type()));
+    }
+  }
   bool bind(const std::shared_ptr<s::Service>& sensor) {
     if (auto o = std::dynamic_pointer_cast<s::OccupancyService>(sensor)) {
       listen(o);
-      if (report_current_) report_occupancy(o);
+      if (report_current_ && o->available()) report_occupancy(o);
       return true;
     }
     if (auto m = std::dynamic_pointer_cast<s::MotionSensorService>(sensor)) return listen(m), true;
@@ -97,6 +113,7 @@ class Sense final : public Behavior {
   std::string type_;
   std::string room_;
   bool report_current_;
+  std::set<std::string> bound_;
 };
 
 // --- Navigation helpers ---------------------------------------------------------------------------

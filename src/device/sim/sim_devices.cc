@@ -255,7 +255,14 @@ class SimWheels final : public home::WheelsServant {
       : robot_(std::move(robot)), world_(context.world), listener_(context.world) {
     listener_.set(world_.on_robot_pose(
         [this](const std::string& which, const sim::Pose& pose, bool moving) {
-          if (which == robot_) publish(pose, moving, false);
+          if (which != robot_) return;
+          {
+            // Stopping at the goal is reported once, as the arrival (by move's done), so a
+            // listener never mistakes the arrival's last pose for a stop short of the goal.
+            std::lock_guard lock(mutex_);
+            if (!moving && goal_ && sim::distance(pose.position(), *goal_) < 1e-3) return;
+          }
+          publish(pose, moving, false);
         }));
   }
   double go_to(const home::Pose& target, const p::Current&) override {
@@ -266,9 +273,15 @@ class SimWheels final : public home::WheelsServant {
     if (!at) throw home::UnknownTarget(waypoint, "no waypoint, furniture or room '" + waypoint + "'");
     return move(*at, waypoint);
   }
-  void stop(const p::Current&) override { world_.stop_robot(robot_); }
+  void stop(const p::Current&) override {
+    forget_goal();
+    world_.stop_robot(robot_);
+  }
   // The position event that follows (from the clock) has the new heading, not moving.
-  void turn_to(double theta, const p::Current&) override { world_.turn_robot(robot_, theta); }
+  void turn_to(double theta, const p::Current&) override {
+    forget_goal();
+    world_.turn_robot(robot_, theta);
+  }
   home::Pose position(const p::Current&) override {
     const auto pose = world_.robot_pose(robot_);
     return home::Pose{pose.x, pose.y, pose.theta};
@@ -283,10 +296,12 @@ class SimWheels final : public home::WheelsServant {
 
  private:
   double move(sim::Point target, const std::string& name) {
+    std::lock_guard lock(mutex_);  // the first report comes from the clock, after goal_ is set
     auto path = world_.move_robot(robot_, target, [this](bool arrived) {
       if (arrived) publish(world_.robot_pose(robot_), false, true);
     });
     if (!path) throw home::UnknownTarget(name, "no path from the robot to " + name);
+    goal_ = path->empty() ? target : path->back();
     double length = 0;
     for (std::size_t i = 1; i < path->size(); ++i) length += sim::distance((*path)[i - 1], (*path)[i]);
     return length;
@@ -297,9 +312,16 @@ class SimWheels final : public home::WheelsServant {
                                            ms(world_.clock().now())});
   }
 
+  void forget_goal() {
+    std::lock_guard lock(mutex_);
+    goal_.reset();
+  }
+
   std::string robot_;
   sim::World& world_;
   p::Publisher<home::PositionEvent> positions_{home::PositionListener::on_position};
+  std::mutex mutex_;
+  std::optional<sim::Point> goal_;  // where the current move ends
   WorldListener listener_;
 };
 
@@ -392,7 +414,7 @@ class SimCamera final : public home::CameraServant {
     image.time_ms = ms(world_.clock().now());
     image.camera = home::Pose{at.x, at.y, at.theta};
     image.data.bytes.resize(text.size());
-    std::memcpy(image.data.bytes.data(), text.data(), text.size());
+    if (!text.empty()) std::memcpy(image.data.bytes.data(), text.data(), text.size());
     return image;
   }
 

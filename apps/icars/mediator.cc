@@ -1,0 +1,420 @@
+// `icars run`: assembles the mediating server — PLANET server, Service Framework, behavior
+// runtime, Collaboration Manager — around a house, runs a policy and reports what happened.
+#include "mediator.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <csignal>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <set>
+#include <thread>
+
+#include "icars/behavior/house_behaviors.h"
+#include "icars/control/collaboration.h"
+#include "icars/device/simulated_house.h"
+#include "icars/service/service_framework.h"
+#include "icars/sim/svg_plot.h"
+
+namespace icars::app {
+
+namespace b = icars::behavior;
+namespace c = icars::control;
+namespace p = icars::planet;
+namespace s = icars::service;
+using namespace std::chrono_literals;
+
+namespace {
+
+std::pair<std::string, std::uint16_t> split_endpoint(const std::string& endpoint) {
+  const auto colon = endpoint.rfind(':');
+  if (colon == std::string::npos) throw std::invalid_argument("--listen " + endpoint + ": expected host:port");
+  const auto port = std::stoi(endpoint.substr(colon + 1));
+  if (port < 0 || port > 65535) throw std::invalid_argument("--listen " + endpoint + ": bad port");
+  return {endpoint.substr(0, colon), static_cast<std::uint16_t>(port)};
+}
+
+b::TraceRecord record(sim::SimTime t, std::string kind, std::string source, std::string text) {
+  b::TraceRecord r;
+  r.time = t;
+  r.kind = std::move(kind);
+  r.source = std::move(source);
+  r.text = std::move(text);
+  return r;
+}
+
+// Follows the simulated time of a house whose device managers run elsewhere: polls the
+// Simulation service's clock and advances the mediator's own clock to it.
+class ClockFollower {
+ public:
+  ClockFollower(sim::SimClock& clock, s::ServiceContainer& services) : clock_(clock), services_(services) {
+    thread_ = std::thread([this] { run(); });
+  }
+  ~ClockFollower() {
+    stop_ = true;
+    thread_.join();
+  }
+  bool following() const { return following_; }
+
+ private:
+  void run() {
+    while (!stop_) {
+      if (auto simulation = services_.find_first<s::SimulationService>(s::ServiceQuery::of_type("Simulation").available())) {
+        try {
+          const sim::SimTime remote(simulation->proxy().now_ms());
+          if (remote > clock_.now()) clock_.advance_to(remote);
+          following_ = true;
+        } catch (const std::exception&) {
+          // The device manager is restarting: keep the time we have and ask again.
+        }
+      }
+      std::this_thread::sleep_for(20ms);
+    }
+  }
+  sim::SimClock& clock_;
+  s::ServiceContainer& services_;
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> following_{false};
+  std::thread thread_;
+};
+
+// What the mediator hears and where its robots are, for the timeline: every SpeechSensor's
+// recognized speech and (for robots the mediator cannot see directly) Navigation positions.
+class ServiceObserver {
+ public:
+  ServiceObserver(s::ServiceContainer& services, b::Trace& trace, sim::SimClock& clock, bool positions)
+      : services_(services), trace_(trace), clock_(clock), positions_(positions) {
+    watch_ = services_.watch([this](const std::shared_ptr<s::Service>& service, const s::ServiceChange& change) {
+      if (change == s::ServiceChange::added) observe(service);
+    });
+    for (const auto& service : services_.all()) observe(service);
+  }
+  ~ServiceObserver() {
+    services_.remove_watcher(watch_);
+    std::lock_guard lock(mutex_);
+    for (auto& release : releases_) release();
+  }
+  int heard() const { return heard_.load(); }
+
+ private:
+  void observe(const std::shared_ptr<s::Service>& service) {
+    std::lock_guard lock(mutex_);
+    if (!seen_.insert(service->id()).second) return;
+    if (auto speech = std::dynamic_pointer_cast<s::SpeechSensor>(service)) {
+      const auto id = speech->subscribe([this](const s::SpeechEvent& e) {
+        ++heard_;
+        auto r = record(sim::SimTime(e.time_ms), "speech", e.device,
+                        fmt::format("{} heard \"{}\" ({:.0f}% sure)", e.device, e.text, e.confidence * 100));
+        r.with("text", e.text).with("device", e.device);
+        trace_.record(std::move(r));
+      });
+      releases_.push_back([speech, id] { speech->unsubscribe(id); });
+    }
+    if (auto nav = std::dynamic_pointer_cast<s::NavigationService>(service); nav && positions_) {
+      const auto id = nav->subscribe([this](const home::PositionEvent& e) {
+        auto r = record(sim::SimTime(e.time_ms), "robot", e.robot,
+                        fmt::format("{} at ({:.2f}, {:.2f}){}", e.robot, e.x, e.y, e.moving ? " moving" : ""));
+        r.with("robot", e.robot).with("x", e.x).with("y", e.y).with("moving", e.moving);
+        trace_.record(std::move(r));
+      });
+      releases_.push_back([nav, id] { nav->unsubscribe(id); });
+    }
+    (void)clock_;
+  }
+
+  s::ServiceContainer& services_;
+  b::Trace& trace_;
+  sim::SimClock& clock_;
+  bool positions_;
+  std::uint64_t watch_ = 0;
+  std::mutex mutex_;
+  std::set<std::string> seen_;
+  std::vector<std::function<void()>> releases_;
+  std::atomic<int> heard_{0};
+};
+
+// --- The summary ----------------------------------------------------------------------------
+
+struct Summary {
+  std::vector<b::TraceRecord> records;
+
+  void print(const std::string& policy, sim::SimTime from, sim::SimTime to, double wall_seconds, double speed) const {
+    std::printf("\n=== summary: policy %s, %s to %s (%.0f min simulated in %.1f s, %.0fx) ===\n", policy.c_str(),
+                sim::format_time(from).c_str(), sim::format_time(to).c_str(),
+                static_cast<double>((to - from).count()) / 60000.0, wall_seconds, speed);
+    // States: how often entered and for how long.
+    std::map<std::string, std::pair<int, sim::SimTime>> states;
+    std::map<std::string, sim::SimTime> entered;
+    std::vector<std::string> order;
+    int transitions = 0;
+    for (const auto& r : records) {
+      if (r.kind == "transition") ++transitions;
+      if (r.kind != "state") continue;
+      const auto name = r.field("state");
+      if (!states.contains(name)) order.push_back(name);
+      if (r.field("event") == "enter") {
+        ++states[name].first;
+        entered[name] = r.time;
+      } else if (entered.contains(name)) {
+        states[name].second += r.time - entered[name];
+        entered.erase(name);
+      }
+    }
+    for (const auto& [name, since] : entered) states[name].second += to - since;
+    std::printf("states (%d transitions):\n", transitions);
+    for (const auto& name : order) {
+      std::printf("  %-14s entered %2d times, %6.1f min\n", name.c_str(), states[name].first,
+                  static_cast<double>(states[name].second.count()) / 60000.0);
+    }
+    // Behaviors.
+    int started = 0, succeeded = 0, failed = 0, halted = 0, calls = 0, failed_calls = 0, effects = 0, heard = 0;
+    std::vector<std::string> failures;
+    std::map<std::string, std::string> device_state;
+    double driven = 0;
+    std::map<std::string, std::pair<double, double>> last_pose;
+    for (const auto& r : records) {
+      if (r.kind == "behavior") {
+        const auto e = r.field("event");
+        started += e == "start";
+        succeeded += e == "success";
+        halted += e == "halt";
+        if (e == "failure") {
+          ++failed;
+          if (failures.size() < 5) failures.push_back(fmt::format("[{}] {}", sim::format_time(r.time), r.text));
+        }
+      } else if (r.kind == "call") {
+        if (r.field("ok") == "false") ++failed_calls;
+        else ++calls;
+      } else if (r.kind == "effect") {
+        ++effects;
+        auto& state = device_state[r.field("device")];
+        state = r.field("what") + (r.field("value").empty() ? "" : " " + r.field("value"));
+      } else if (r.kind == "speech") {
+        ++heard;
+      } else if (r.kind == "robot") {
+        const double x = std::stod(r.field("x")), y = std::stod(r.field("y"));
+        const auto robot = r.field("robot");
+        if (last_pose.contains(robot)) driven += std::hypot(x - last_pose[robot].first, y - last_pose[robot].second);
+        last_pose[robot] = {x, y};
+      }
+    }
+    std::printf("behaviors: %d started, %d succeeded, %d failed, %d halted\n", started, succeeded, failed, halted);
+    for (const auto& f : failures) std::printf("  %s\n", f.c_str());
+    std::printf("service calls: %d (%d failed); voice commands heard: %d\n", calls, failed_calls, heard);
+    std::printf("device effects: %d; last effect per device:\n", effects);
+    for (const auto& [device, state] : device_state) std::printf("  %-16s %s\n", device.c_str(), state.c_str());
+    std::printf("robot distance driven: %.1f m\n", driven);
+  }
+
+  sim::PlotData plot(const std::string& title, const sim::House& house) const {
+    sim::PlotData data;
+    data.title = title;
+    std::map<std::string, sim::PlotTrack> robots, users;
+    std::pair<double, double> robot_at{0, 0};
+    if (!house.robots.empty()) robot_at = {house.robots.front().start.x, house.robots.front().start.y};
+    for (const auto& r : records) {
+      if (r.kind == "robot" || r.kind == "user") {
+        const auto who = r.kind == "robot" ? r.field("robot") : r.field("user");
+        auto& track = (r.kind == "robot" ? robots : users)[who];
+        track.name = who;
+        const double x = std::stod(r.field("x")), y = std::stod(r.field("y"));
+        track.points.emplace_back(r.time, sim::Point{x, y});
+        if (r.kind == "robot") robot_at = {x, y};
+      } else if (r.kind == "transition") {
+        sim::PlotMark mark;
+        mark.time = r.time;
+        mark.at = sim::Point{robot_at.first, robot_at.second};
+        mark.label = fmt::format("{} {}", sim::format_time(r.time).substr(3, 5), r.field("to"));
+        data.marks.push_back(std::move(mark));
+      }
+    }
+    for (auto& [name, track] : robots) data.robots.push_back(std::move(track));
+    for (auto& [name, track] : users) data.users.push_back(std::move(track));
+    return data;
+  }
+};
+
+}  // namespace
+
+int run(const RunOptions& options) {
+  // Signals are taken by sigtimedwait below: block them before any thread starts.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  spdlog::set_level(spdlog::level::warn);
+
+  // --- Inputs: every mistake here is reported before anything starts. ---------------------------
+  sim::House house;
+  try {
+    house = sim::load_house(options.world);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "icars: %s\n", e.what());
+    return 2;
+  }
+  b::BehaviorRegistry registry;
+  b::register_generic_behaviors(registry);
+  b::house::register_house_behaviors(registry);
+  c::PolicyRepository repository(options.policy_dir);
+  std::string policy_name;
+  try {
+    const auto parsed = c::parse_policy_file(repository.path_of(options.policy), registry);
+    for (const auto& w : parsed.warnings) std::fprintf(stderr, "%s\n", w.to_string().c_str());
+    policy_name = parsed.policy.name;
+  } catch (const c::PolicyError& e) {
+    for (const auto& d : e.diagnostics()) std::fprintf(stderr, "%s\n", d.to_string().c_str());
+    return 2;
+  }
+  const auto until = sim::parse_time_of_day(options.until);
+  if (!until) {
+    std::fprintf(stderr, "icars: --until %s is not a time of day (HH:MM)\n", options.until.c_str());
+    return 2;
+  }
+  const auto start = house.start_time;
+  const auto day = sim::kDay * (start / sim::kDay);
+  auto stop_at = day + *until;
+  if (stop_at <= start) stop_at += sim::kDay;
+  std::string host;
+  std::uint16_t port = 0;
+  try {
+    std::tie(host, port) = split_endpoint(options.listen);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "icars: %s\n", e.what());
+    return 2;
+  }
+
+  // --- The trace: timeline, JSON lines, and what the summary and plot are made from. ---------
+  b::Trace trace;
+  b::TraceLog log;
+  trace.add_sink(log.sink());
+  if (!options.quiet) trace.add_sink(b::timeline_printer(stdout));
+  if (!options.trace_file.empty()) {
+    try {
+      trace.add_sink(b::json_lines_writer(options.trace_file));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "icars: %s\n", e.what());
+      return 2;
+    }
+  }
+
+  // --- The mediating server. ----------------------------------------------------------------------
+  p::CommunicatorOptions server_options;
+  server_options.name = "icars";
+  server_options.logger = spdlog::default_logger();
+  p::Communicator server(server_options);
+  s::ServiceFramework sf(server);
+  std::uint16_t bound = 0;
+  try {
+    bound = server.listen(host, port);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "icars: cannot listen on %s: %s\n", options.listen.c_str(), e.what());
+    return 2;
+  }
+  std::printf("[icars] mediating server on %s:%u; policy %s; house %s\n", host.c_str(), bound,
+              repository.path_of(options.policy).c_str(), house.name.c_str());
+
+  // --- The house: simulated device managers in this process, or elsewhere. -------------------
+  std::unique_ptr<device::SimulatedHouse> home;
+  std::unique_ptr<sim::SimClock> own_clock;
+  std::vector<std::uint64_t> world_listeners;
+  sim::SimClock* clock = nullptr;
+  if (!options.external) {
+    device::SimulatedHouseOptions house_options;
+    house_options.speedup = options.speed;
+    house_options.pun = "house-devices";
+    house_options.logger = spdlog::default_logger();
+    house_options.effects = [&trace](const device::DeviceEffect& e) {
+      auto r = record(e.time, "effect", e.device, fmt::format("{}: {}{}", e.device, e.what, e.value.empty() ? "" : " " + e.value));
+      r.with("device", e.device).with("what", e.what).with("value", e.value);
+      trace.record(std::move(r));
+    };
+    home = std::make_unique<device::SimulatedHouse>(house, house_options);
+    auto& world = home->world();
+    world_listeners.push_back(world.on_robot_pose([&trace, &world](const std::string& robot, const sim::Pose& pose, bool moving) {
+      auto r = record(world.clock().now(), "robot", robot,
+                      fmt::format("{} at ({:.2f}, {:.2f}){}", robot, pose.x, pose.y, moving ? " moving" : ""));
+      r.with("robot", robot).with("x", pose.x).with("y", pose.y).with("moving", moving);
+      trace.record(std::move(r));
+    }));
+    world_listeners.push_back(world.on_user([&trace, &world](const sim::UserState& u) {
+      const auto posture = std::string(sim::to_string(u.posture));
+      auto r = record(world.clock().now(), "user", u.user,
+                      fmt::format("{} {}{} in the {}", u.user, posture, u.furniture.empty() ? "" : " on the " + u.furniture,
+                                  u.room.empty() ? "house" : u.room));
+      r.with("user", u.user).with("x", u.at.x).with("y", u.at.y).with("room", u.room).with("posture", posture)
+          .with("furniture", u.furniture);
+      trace.record(std::move(r));
+    }));
+    home->start("127.0.0.1", bound);
+    if (!home->manager().wait_registered(1, 30s)) {
+      std::fprintf(stderr, "icars: the house's devices did not register: %s\n", home->manager().last_error().c_str());
+      return 1;
+    }
+    clock = &home->clock();
+    std::printf("[icars] %zu devices registered, %zu services\n", home->manager().devices().size(),
+                sf.container().all().size());
+  } else {
+    own_clock = std::make_unique<sim::SimClock>(start);
+    clock = own_clock.get();
+    std::printf("[icars] waiting for device managers (icars-device-manager --server %s:%u)\n", host.c_str(), bound);
+  }
+  std::unique_ptr<ClockFollower> follower;
+  if (own_clock) follower = std::make_unique<ClockFollower>(*own_clock, sf.container());
+  ServiceObserver observer(sf.container(), trace, *clock, options.external);
+
+  // --- Behaviors, tasks and the Coordinator. -------------------------------------------------------
+  b::Runtime runtime(*clock);
+  b::Environment env{runtime, sf.container(), trace};
+  c::CollaborationManager manager(repository, registry, env);
+  if (follower) {
+    // Start once the simulation's time is known, so timers count from the house's clock.
+    while (!follower->following()) {
+      const timespec wait{0, 50'000'000};
+      if (sigtimedwait(&signals, nullptr, &wait) > 0) return 0;
+    }
+  }
+  const auto started_at = clock->now();
+  const auto wall_start = std::chrono::steady_clock::now();
+  try {
+    manager.run(options.policy);
+  } catch (const c::PolicyError& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    return 2;
+  }
+
+  bool interrupted = false;
+  while (clock->now() < stop_at) {
+    const timespec wait{0, 20'000'000};
+    if (sigtimedwait(&signals, nullptr, &wait) > 0) {
+      interrupted = true;
+      break;
+    }
+  }
+  const auto ended_at = clock->now();
+  manager.stop();
+  runtime.drain(5s);
+  if (home) {
+    for (const auto id : world_listeners) home->world().remove_listener(id);
+  }
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+
+  Summary summary{log.records()};
+  summary.print(policy_name, started_at, ended_at, wall, options.speed);
+  if (interrupted) std::printf("(interrupted)\n");
+  if (!options.plot_file.empty()) {
+    try {
+      sim::write_svg(options.plot_file, house, summary.plot(fmt::format("{} on {}", policy_name, house.name), house));
+      std::printf("plot: %s\n", options.plot_file.c_str());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "icars: %s\n", e.what());
+      return 1;
+    }
+  }
+  if (!options.trace_file.empty()) std::printf("trace: %s\n", options.trace_file.c_str());
+  return 0;
+}
+
+}  // namespace icars::app

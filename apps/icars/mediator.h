@@ -1,0 +1,26 @@
+// The `icars run` command: a mediating server running a collaboration policy on a house.
+#pragma once
+
+#include <optional>
+#include <string>
+
+namespace icars::app {
+
+struct RunOptions {
+  std::string policy;          // a policy file, or a name in policy_dir
+  std::string policy_dir = "examples/smart_home";
+  std::string world;           // the house file
+  double speed = 1500;         // simulated seconds per wall-clock second
+  std::string until = "07:30"; // stop at this time of day (the next one after the house's start)
+  std::string trace_file;      // JSON lines
+  std::string plot_file;       // SVG
+  std::string listen = "127.0.0.1:0";
+  bool external = false;       // device managers run elsewhere (icars-device-manager)
+  bool quiet = false;          // no timeline on stdout, only the summary
+};
+
+// Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run
+// failed, 2 bad input: house, policy or options).
+int run(const RunOptions& options);
+
+}  // namespace icars::app
