@@ -1,0 +1,205 @@
+// `icars` as a user runs it: real processes, the embedded simulated house over loopback PLANET,
+// and the JSON-lines trace read back to check what happened, in order.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <unistd.h>
+#include <vector>
+
+#include "icars/sim/house.h"
+
+using nlohmann::json;
+
+namespace {
+
+const std::string kIcars = ICARS_BINARY;
+const std::string kSource = ICARS_SOURCE_DIR;
+
+struct Run {
+  int exit_code = -1;
+  std::string output;
+  std::vector<json> trace;
+};
+
+std::string temp(const std::string& name) {
+  return ::testing::TempDir() + "icars_" + std::to_string(::getpid()) + "_" + name;
+}
+
+Run run_icars(const std::string& args, bool with_trace = true) {
+  Run r;
+  const auto out = temp("out.txt");
+  const auto trace = temp("trace.jsonl");
+  const auto command = "timeout 600 " + kIcars + " " + args + (with_trace ? " --trace " + trace : "") + " >" + out + " 2>&1";
+  const int status = std::system(command.c_str());
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream o(out);
+  r.output.assign(std::istreambuf_iterator<char>(o), {});
+  std::ifstream t(trace);
+  for (std::string line; std::getline(t, line);) {
+    if (!line.empty()) r.trace.push_back(json::parse(line));
+  }
+  std::remove(out.c_str());
+  std::remove(trace.c_str());
+  return r;
+}
+
+std::string str(const json& j, const char* key) { return j.contains(key) && j[key].is_string() ? j[key].get<std::string>() : ""; }
+
+// The index of the first record at or after `from` matching `pred`, or trace.size().
+std::size_t find(const std::vector<json>& trace, std::size_t from, const std::function<bool(const json&)>& pred) {
+  for (std::size_t i = from; i < trace.size(); ++i) {
+    if (pred(trace[i])) return i;
+  }
+  return trace.size();
+}
+
+auto transition_to(const std::string& state) {
+  return [state](const json& j) { return str(j, "kind") == "transition" && str(j, "to") == state; };
+}
+auto effect(const std::string& device, const std::string& what, const std::string& value) {
+  return [=](const json& j) {
+    return str(j, "kind") == "effect" && str(j, "device") == device && str(j, "what") == what && str(j, "value") == value;
+  };
+}
+auto event(const std::string& type) {
+  return [type](const json& j) { return str(j, "kind") == "event" && str(j, "event") == type; };
+}
+auto user(const std::string& posture, const std::string& furniture) {
+  return [=](const json& j) {
+    return str(j, "kind") == "user" && str(j, "posture") == posture && str(j, "furniture") == furniture;
+  };
+}
+
+}  // namespace
+
+// The acceptance run: the shipped policy on the paper's house, evening to morning.
+TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
+  const auto plot = temp("plot.svg");
+  const auto r = run_icars("run " + kSource + "/examples/smart_home/paper_home.xml --world " + kSource +
+                           "/houses/paper_house.xml --speed 600 --until 07:30 --quiet --plot " + plot);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto& t = r.trace;
+  const auto n = t.size();
+  ASSERT_GT(n, 100u) << r.output;
+
+  // The user sits on the sofa → RestMode; the robot reaches the user.
+  const auto sits = find(t, 0, user("sitting", "sofa"));
+  ASSERT_LT(sits, n);
+  const auto rest = find(t, sits, transition_to("RestMode"));
+  ASSERT_LT(rest, n) << "no RestMode after the user sat down";
+  const auto reached = find(t, rest, event("ReachedUser"));
+  ASSERT_LT(reached, n) << "the robot did not reach the user";
+  // "turn on the TV" → the TV is on, and the other commands of the evening are served.
+  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "text") == "turn on the TV"; });
+  ASSERT_LT(heard, n);
+  EXPECT_LT(find(t, heard, effect("tv", "power", "on")), n) << "the TV did not turn on";
+  EXPECT_LT(find(t, heard, effect("tv", "channel", "5")), n);
+  EXPECT_LT(find(t, heard, effect("robot1_speaker", "playing", "relaxing music")), n);
+
+  // The user lies in bed at night → SleepMode: lights off, calm music, every patrol waypoint.
+  const auto lies = find(t, reached, user("lying", "bed"));
+  ASSERT_LT(lies, n);
+  const auto sleep = find(t, lies, transition_to("SleepMode"));
+  ASSERT_LT(sleep, n) << "no SleepMode after the user lay down";
+  EXPECT_LT(find(t, sleep, effect("living_light", "power", "off")), n);
+  EXPECT_LT(find(t, sleep, effect("bedroom_light", "power", "off")), n);
+  const auto music = find(t, sleep, effect("robot1_speaker", "playing", "calm music"));
+  EXPECT_LT(music, n);
+  EXPECT_LT(find(t, music, effect("robot1_speaker", "stopped", "")), n) << "the calm music never stopped";
+  const auto house = icars::sim::load_house(kSource + "/houses/paper_house.xml");
+  std::size_t at = sleep;
+  int patrol_points = 0;
+  for (const auto& w : house.waypoints) {
+    if (std::find(w.tags.begin(), w.tags.end(), "patrol") == w.tags.end()) continue;
+    ++patrol_points;
+    const auto visit = find(t, at, [&](const json& j) { return str(j, "event") == "WaypointReached" && str(j, "waypoint") == w.name; });
+    EXPECT_LT(visit, n) << "the patrol did not visit " << w.name;
+    if (visit < n) at = visit;  // in the house's order
+  }
+  EXPECT_EQ(patrol_points, 6);
+
+  // The user gets up in the morning → back to Observation.
+  const auto gets_up = find(t, sleep, [](const json& j) { return str(j, "kind") == "user" && str(j, "posture") == "standing"; });
+  ASSERT_LT(gets_up, n);
+  EXPECT_LT(find(t, gets_up, transition_to("Observation")), n);
+
+  // Nothing failed on the way, and the plot was drawn.
+  EXPECT_EQ(find(t, 0, [](const json& j) { return str(j, "kind") == "behavior" && str(j, "event") == "failure"; }), n);
+  EXPECT_NE(r.output.find("voice commands heard: 5"), std::string::npos) << r.output;
+  std::ifstream svg(plot);
+  std::string drawing((std::istreambuf_iterator<char>(svg)), {});
+  EXPECT_NE(drawing.find("<svg"), std::string::npos);
+  EXPECT_NE(drawing.find("robot1"), std::string::npos);
+  std::remove(plot.c_str());
+}
+
+// A second house and policy written only for tests: other names, guards, a hierarchical
+// state, and a failure transition when the robot cannot reach the user.
+TEST(IcarsRun, AnotherPolicyOnAnotherHouseTakesItsFailureTransition) {
+  const auto r = run_icars("run " + kSource + "/apps/icars/testdata/night_light.xml --world " + kSource +
+                           "/apps/icars/testdata/studio_house.xml --speed 1000 --until 07:00 --quiet");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto& t = r.trace;
+  const auto n = t.size();
+  const auto evening = find(t, find(t, 0, user("sitting", "couch")), transition_to("Evening"));
+  ASSERT_LT(evening, n) << r.output;
+  EXPECT_LT(find(t, evening, effect("desk_lamp", "power", "on")), n);
+  EXPECT_LT(find(t, evening, effect("butler_voice", "spoke", "Good evening, Alice.")), n);
+  const auto day = find(t, evening, transition_to("Day"));
+  ASSERT_LT(day, n);
+  const auto night = find(t, find(t, day, user("lying", "futon")), transition_to("Night"));
+  ASSERT_LT(night, n);
+  EXPECT_LT(find(t, night, effect("desk_lamp", "power", "off")), n);
+  const auto stranded = find(t, night, transition_to("Stranded"));
+  ASSERT_LT(stranded, n) << "the unreachable user did not lead to the failure transition";
+  EXPECT_EQ(str(t[stranded], "event"), "failed");
+  EXPECT_NE(str(t[stranded], "text").find("alice not found in studio, loft"), std::string::npos) << t[stranded].dump();
+  EXPECT_LT(find(t, stranded, effect("butler_voice", "spoke", "I cannot get to the loft.")), n);
+  EXPECT_LT(find(t, stranded, transition_to("Day")), n) << "no way back in the morning";
+}
+
+TEST(IcarsValidate, TheShippedPoliciesAreValid) {
+  const auto r = run_icars("validate " + kSource + "/examples/smart_home/paper_home.xml " + kSource +
+                           "/apps/icars/testdata/night_light.xml", false);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("paper_home.xml: ok: policy paper_home, 4 tasks, 5 states, 0 warnings"), std::string::npos) << r.output;
+}
+
+TEST(IcarsValidate, BrokenPoliciesGetFileLineErrorsAndExitCodeOne) {
+  const std::string dir = kSource + "/src/control/testdata/";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"malformed_xml.xml", "malformed_xml.xml:4: error: malformed XML"},
+      {"unknown_behavior.xml", "unknown_behavior.xml:4: error: unknown behavior type 'Wiat'"},
+      {"bad_transition_target.xml", "bad_transition_target.xml:7: error: transition on 'Go' goes to state 'Nowhere'"},
+      {"missing_attribute.xml", "missing_attribute.xml:3: error: <behavior> needs a 'type' attribute"},
+  };
+  for (const auto& [file, expected] : cases) {
+    const auto r = run_icars("validate " + dir + file, false);
+    EXPECT_EQ(r.exit_code, 1) << file << "\n" << r.output;
+    EXPECT_NE(r.output.find(expected), std::string::npos) << r.output;
+  }
+  // A house policy naming a behavior the house registry lacks, or a file that is not there.
+  const auto missing = run_icars("validate /nonexistent/policy.xml", false);
+  EXPECT_EQ(missing.exit_code, 1);
+  EXPECT_NE(missing.output.find("cannot read the policy file"), std::string::npos) << missing.output;
+}
+
+TEST(IcarsRun, BadInputIsAClearErrorBeforeAnythingStarts) {
+  auto r = run_icars("run " + kSource + "/src/control/testdata/unknown_behavior.xml --world " + kSource +
+                     "/houses/paper_house.xml", false);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("unknown behavior type 'Wiat'"), std::string::npos) << r.output;
+  r = run_icars("run " + kSource + "/examples/smart_home/paper_home.xml --world /nonexistent/house.xml", false);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("/nonexistent/house.xml"), std::string::npos) << r.output;
+  r = run_icars("run " + kSource + "/examples/smart_home/paper_home.xml --world " + kSource +
+                "/houses/paper_house.xml --until 25:00", false);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("--until 25:00 is not a time of day"), std::string::npos) << r.output;
+}
