@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "icars/sim/house.h"
+#include "child_process.h"
 
 using nlohmann::json;
 
@@ -20,6 +21,7 @@ namespace {
 
 const std::string kIcars = ICARS_BINARY;
 const std::string kSource = ICARS_SOURCE_DIR;
+const std::string kDeviceManager = ICARS_DEVICE_MANAGER_BINARY;
 
 struct Run {
   int exit_code = -1;
@@ -96,7 +98,7 @@ TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
   const auto reached = find(t, rest, event("ReachedUser"));
   ASSERT_LT(reached, n) << "the robot did not reach the user";
   // "turn on the TV" → the TV is on, and the other commands of the evening are served.
-  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "text") == "turn on the TV"; });
+  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the TV"; });
   ASSERT_LT(heard, n);
   EXPECT_LT(find(t, heard, effect("tv", "power", "on")), n) << "the TV did not turn on";
   EXPECT_LT(find(t, heard, effect("tv", "channel", "5")), n);
@@ -202,4 +204,43 @@ TEST(IcarsRun, BadInputIsAClearErrorBeforeAnythingStarts) {
                 "/houses/paper_house.xml --until 25:00", false);
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.output.find("--until 25:00 is not a time of day"), std::string::npos) << r.output;
+}
+
+// The same binaries as separate processes: the mediator waits for a device manager started
+// elsewhere and follows the house's simulated clock.
+TEST(IcarsRun, ExternalDeviceManagerInItsOwnProcess) {
+  const auto trace_file = temp("external.jsonl");
+  planet_test::ChildProcess mediator({kIcars, "run", kSource + "/examples/smart_home/paper_home.xml", "--world",
+                                      kSource + "/houses/paper_house.xml", "--external", "--listen", "127.0.0.1:0",
+                                      "--until", "18:30", "--trace", trace_file});
+  std::string port;
+  while (auto line = mediator.read_line(std::chrono::seconds(60))) {
+    const std::string prefix = "[icars] mediating server on 127.0.0.1:";
+    if (line->starts_with(prefix)) {
+      port = line->substr(prefix.size(), line->find(';') - prefix.size());
+      break;
+    }
+  }
+  ASSERT_FALSE(port.empty());
+  planet_test::ChildProcess devices({kDeviceManager, "--house", kSource + "/houses/paper_house.xml", "--server",
+                                     "127.0.0.1:" + port, "--speedup", "600"});
+  bool summary = false;
+  while (auto line = mediator.read_line(std::chrono::seconds(120))) summary |= line->starts_with("=== summary");
+  const int status = mediator.wait();
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
+  EXPECT_TRUE(summary);
+  std::vector<json> t;
+  std::ifstream in(trace_file);
+  for (std::string line; std::getline(in, line);) t.push_back(json::parse(line));
+  std::remove(trace_file.c_str());
+  const auto n = t.size();
+  const auto rest = find(t, 0, transition_to("RestMode"));
+  ASSERT_LT(rest, n);
+  const auto reached = find(t, rest, event("ReachedUser"));
+  ASSERT_LT(reached, n);
+  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the TV"; });
+  ASSERT_LT(heard, n);
+  const auto call = find(t, heard, [](const json& j) { return str(j, "kind") == "call" && str(j, "call") == "tv.tv_control.set_power(true)"; });
+  ASSERT_LT(call, n);
+  EXPECT_EQ(find(t, call, [](const json& j) { return str(j, "kind") == "call" && j.contains("ok"); }), n) << "a call failed";
 }

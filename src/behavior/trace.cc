@@ -27,7 +27,10 @@ std::string TraceRecord::to_json() const {
   j["source"] = source;
   j["text"] = text;
   for (const auto& [name, value] : fields) {
-    std::visit([&, &n = name](const auto& v) { j[n] = v; }, value);
+    // A field never replaces the record's own keys: it is written as "_<name>" instead.
+    const bool reserved = name == "t" || name == "time" || name == "kind" || name == "source" || name == "text";
+    const auto key = reserved ? "_" + name : name;
+    std::visit([&](const auto& v) { j[key] = v; }, value);
   }
   return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
