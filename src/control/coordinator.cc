@@ -241,7 +241,7 @@ void Coordinator::on_task_event(const b::Event& event) {
   if (active_.empty()) return;
   // A statechart that keeps transitioning without time passing (a task failing at entry whose
   // failure transition leads back to it) would spin forever: after kMaxTransitionsPerInstant at
-  // one instant, events wait for time to move on.
+  // one instant, further task events of that instant are dropped (reported once in the trace).
   const auto instant = env_.runtime.now();
   if (instant != last_transition_at_) {
     last_transition_at_ = instant;

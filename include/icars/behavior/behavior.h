@@ -178,6 +178,9 @@ class Behavior : public Owner {
   // An asynchronous call on a service, traced as "<service>.<op>": `start(handler)` initiates
   // it (e.g. `svc->proxy().set_power_async(true, handler)`); `done(error, results...)` runs on
   // the runtime while this activation lasts. Without `done`, a failed call fails the behavior.
+  // A call that cannot even be sent (the service is unbound) completes with the error alone:
+  // give result parameters defaults (`[](std::exception_ptr e, double length = 0)`) so `done`
+  // hears about it; a `done` that cannot take the error alone leaves it to fail the behavior.
   template <class Start, class Done>
   void invoke(const service::Service& service, std::string op, Start start, Done done) {
     const std::string full = service.id() + "." + op;

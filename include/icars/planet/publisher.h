@@ -5,7 +5,7 @@
 // argument of its `subscribe` operation — and sends every published event to all of them as a
 // one-way call of the listener's callback operation:
 //
-//   planet::Publisher<SoundEvent> sounds(communicator, SoundListener::on_sound);
+//   planet::Publisher<SoundEvent> sounds(SoundListener::on_sound);
 //   sounds.subscribe(listener_prx);      // inside the servant's subscribe(listener, current)
 //   sounds.publish(SoundEvent{...});     // never blocks
 //

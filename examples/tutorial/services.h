@@ -1,0 +1,51 @@
+// Tutorial, step 3 (service provider): the adaptor services through which behaviors use the
+// new capabilities. When a device registers, the Service Framework's device registry asks its
+// AdaptorFactory for one adaptor per capability, keyed by the capability's interface id, and
+// puts it in the service container, where behaviors discover it by type and room.
+#pragma once
+
+#include "fan.planet.h"
+#include "icars/service/adaptor.h"
+#include "icars/service/device_registry.h"
+
+namespace tutorial {
+
+// An actuator: the service is the capability's proxy, bound while its device is connected.
+class FanService final : public icars::service::AdaptorOf<FanPrx> {
+ public:
+  FanService(const df::DeviceInfo& device, const df::CapabilityInfo& capability)
+      : AdaptorOf("Fan", device, capability) {}
+};
+
+// A sensor: the adaptor serves a TemperatureListener on the server and subscribes it to the
+// thermometer on every bind, so events flow again after the device reconnects.
+class ThermometerService final
+    : public icars::service::SensorAdaptor<ThermometerPrx, TemperatureListener, TemperatureEvent> {
+ public:
+  ThermometerService(const df::DeviceInfo& device, const df::CapabilityInfo& capability)
+      : SensorAdaptor("Thermometer", device, capability) {}
+
+ protected:
+  void subscribe_listener(const ThermometerPrx& thermometer,
+                          const icars::planet::Ref<TemperatureListener>& listener,
+                          std::function<void(std::exception_ptr)> done) override {
+    thermometer.subscribe_async(listener, std::move(done));
+  }
+  void implement_listener(icars::planet::Servant& servant) override {
+    servant.implement(TemperatureListener::on_temperature,
+                      [this](const TemperatureEvent& e) { deliver(e); });
+  }
+};
+
+// Teaches `factory` the adaptors of fan.idl's capabilities.
+inline void add_adaptors(icars::service::AdaptorFactory& factory) {
+  factory.add(std::string(Fan::type_id), [](const df::DeviceInfo& d, const df::CapabilityInfo& c) {
+    return std::make_shared<FanService>(d, c);
+  });
+  factory.add(std::string(Thermometer::type_id),
+              [](const df::DeviceInfo& d, const df::CapabilityInfo& c) {
+                return std::make_shared<ThermometerService>(d, c);
+              });
+}
+
+}  // namespace tutorial
