@@ -101,6 +101,8 @@ TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
   const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the TV"; });
   ASSERT_LT(heard, n);
   EXPECT_LT(find(t, heard, effect("tv", "power", "on")), n) << "the TV did not turn on";
+  EXPECT_LT(find(t, heard, [](const json& j) { return str(j, "call").starts_with("robot1_wheels.wheels.turn_to("); }), n)
+      << "LookAtSound did not turn the robot towards the voice";
   EXPECT_LT(find(t, heard, effect("tv", "channel", "5")), n);
   EXPECT_LT(find(t, heard, effect("robot1_speaker", "playing", "relaxing music")), n);
 

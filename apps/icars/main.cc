@@ -22,15 +22,8 @@ namespace c = icars::control;
 
 namespace {
 
-b::BehaviorRegistry house_registry() {
-  b::BehaviorRegistry registry;
-  b::register_generic_behaviors(registry);
-  b::house::register_house_behaviors(registry);
-  return registry;
-}
-
 int validate(const std::vector<std::string>& policies, const std::string& policy_dir) {
-  const auto registry = house_registry();
+  const auto registry = b::house::make_house_registry();
   const c::PolicyRepository repository(policy_dir);
   int failed = 0;
   for (const auto& name : policies) {
@@ -59,7 +52,7 @@ int validate(const std::vector<std::string>& policies, const std::string& policy
 }
 
 void list_behaviors() {
-  const auto registry = house_registry();
+  const auto registry = b::house::make_house_registry();
   for (const auto& type : registry.types()) {
     const auto* entry = registry.find(type);
     std::printf("%s: %s\n", type.c_str(), entry->doc.c_str());

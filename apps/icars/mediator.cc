@@ -257,9 +257,7 @@ int run(const RunOptions& options) {
     std::fprintf(stderr, "icars: %s\n", e.what());
     return 2;
   }
-  b::BehaviorRegistry registry;
-  b::register_generic_behaviors(registry);
-  b::house::register_house_behaviors(registry);
+  const auto registry = b::house::make_house_registry();
   c::PolicyRepository repository(options.policy_dir);
   std::string policy_name;
   try {

@@ -39,13 +39,8 @@ class ThermometerService final
 
 // Teaches `factory` the adaptors of fan.idl's capabilities.
 inline void add_adaptors(icars::service::AdaptorFactory& factory) {
-  factory.add(std::string(Fan::type_id), [](const df::DeviceInfo& d, const df::CapabilityInfo& c) {
-    return std::make_shared<FanService>(d, c);
-  });
-  factory.add(std::string(Thermometer::type_id),
-              [](const df::DeviceInfo& d, const df::CapabilityInfo& c) {
-                return std::make_shared<ThermometerService>(d, c);
-              });
+  factory.add<Fan, FanService>();
+  factory.add<Thermometer, ThermometerService>();
 }
 
 }  // namespace tutorial

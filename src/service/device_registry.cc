@@ -14,29 +14,20 @@ std::shared_ptr<Adaptor> AdaptorFactory::make(const df::DeviceInfo& device,
   return std::make_shared<GenericAdaptor>(device, capability);
 }
 
-namespace {
-template <class I, class S>
-void add_maker(AdaptorFactory& f) {
-  f.add(std::string(I::type_id), [](const df::DeviceInfo& d, const df::CapabilityInfo& c) {
-    return std::make_shared<S>(d, c);
-  });
-}
-}  // namespace
-
 AdaptorFactory AdaptorFactory::house() {
   AdaptorFactory f;
-  add_maker<home::TVControl, TVControlService>(f);
-  add_maker<home::Light, LightService>(f);
-  add_maker<home::Speaker, SpeakerService>(f);
-  add_maker<home::Microphone, SoundSensor>(f);
-  add_maker<home::SpeechRecognizer, SpeechRecognizerService>(f);
-  add_maker<home::Wheels, NavigationService>(f);
-  add_maker<home::MotionSensor, MotionSensorService>(f);
-  add_maker<home::OccupancySensor, OccupancyService>(f);
-  add_maker<home::Camera, CameraService>(f);
-  add_maker<home::FaceRecognizer, FaceRecognizerService>(f);
-  add_maker<home::Clock, ClockService>(f);
-  add_maker<home::Simulation, SimulationService>(f);
+  f.add<home::TVControl, TVControlService>();
+  f.add<home::Light, LightService>();
+  f.add<home::Speaker, SpeakerService>();
+  f.add<home::Microphone, SoundSensor>();
+  f.add<home::SpeechRecognizer, SpeechRecognizerService>();
+  f.add<home::Wheels, NavigationService>();
+  f.add<home::MotionSensor, MotionSensorService>();
+  f.add<home::OccupancySensor, OccupancyService>();
+  f.add<home::Camera, CameraService>();
+  f.add<home::FaceRecognizer, FaceRecognizerService>();
+  f.add<home::Clock, ClockService>();
+  f.add<home::Simulation, SimulationService>();
   return f;
 }
 

@@ -25,6 +25,8 @@
 namespace icars::behavior::house {
 
 void register_house_behaviors(BehaviorRegistry& registry);
+// A registry with the generic behaviors (Wait, Emit) and the house behaviors: what `icars` runs.
+BehaviorRegistry make_house_registry();
 
 // Fig. 11b: binds the robot's wheels and sound sensor at entry; on every sound turns the
 // robot towards where it came from.
@@ -40,7 +42,8 @@ class LookAtSound : public Behavior {
   void handle_event(const Event& e) override {
     if (e.type() == "SoundEvent" && e.get<double>("level_db") >= min_level_db_) {
       const double direction = e.get<double>("direction");
-      invoke(*wheels_, "turn_to", [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
+      invoke(*wheels_, "turn_to(" + std::to_string(direction) + ")",
+             [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
     }
   }
 

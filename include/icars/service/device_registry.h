@@ -25,6 +25,14 @@ class AdaptorFactory {
   using Make = std::function<std::shared_ptr<Adaptor>(const df::DeviceInfo&, const df::CapabilityInfo&)>;
 
   void add(std::string interface_id, Make make) { makers_[std::move(interface_id)] = std::move(make); }
+  // Capabilities of IDL interface I become services of adaptor class S (built as S(device,
+  // capability)): factory.add<home::Light, LightService>().
+  template <class I, class S>
+  void add() {
+    add(std::string(I::type_id), [](const df::DeviceInfo& d, const df::CapabilityInfo& c) -> std::shared_ptr<Adaptor> {
+      return std::make_shared<S>(d, c);
+    });
+  }
   // The adaptor for `capability`; a GenericAdaptor when no maker knows its interface.
   std::shared_ptr<Adaptor> make(const df::DeviceInfo& device, const df::CapabilityInfo& capability) const;
   bool knows(const std::string& interface_id) const { return makers_.contains(interface_id); }

@@ -599,4 +599,11 @@ void register_house_behaviors(BehaviorRegistry& registry) {
                            param("rooms", T::list, "", "lights of these rooms (default: all)")});
 }
 
+BehaviorRegistry make_house_registry() {
+  BehaviorRegistry registry;
+  register_generic_behaviors(registry);
+  register_house_behaviors(registry);
+  return registry;
+}
+
 }  // namespace icars::behavior::house
