@@ -85,8 +85,8 @@ class ClockFollower {
 // recognized speech and (for robots the mediator cannot see directly) Navigation positions.
 class ServiceObserver {
  public:
-  ServiceObserver(s::ServiceContainer& services, b::Trace& trace, sim::SimClock& clock, bool positions)
-      : services_(services), trace_(trace), clock_(clock), positions_(positions) {
+  ServiceObserver(s::ServiceContainer& services, b::Trace& trace, bool positions)
+      : services_(services), trace_(trace), positions_(positions) {
     watch_ = services_.watch([this](const std::shared_ptr<s::Service>& service, const s::ServiceChange& change) {
       if (change == s::ServiceChange::added) observe(service);
     });
@@ -122,12 +122,10 @@ class ServiceObserver {
       });
       releases_.push_back([nav, id] { nav->unsubscribe(id); });
     }
-    (void)clock_;
   }
 
   s::ServiceContainer& services_;
   b::Trace& trace_;
-  sim::SimClock& clock_;
   bool positions_;
   std::uint64_t watch_ = 0;
   std::mutex mutex_;
@@ -363,7 +361,7 @@ int run(const RunOptions& options) {
   }
   std::unique_ptr<ClockFollower> follower;
   if (own_clock) follower = std::make_unique<ClockFollower>(*own_clock, sf.container());
-  ServiceObserver observer(sf.container(), trace, *clock, options.external);
+  ServiceObserver observer(sf.container(), trace, options.external);
 
   // --- Behaviors, tasks and the Coordinator. -------------------------------------------------------
   b::Runtime runtime(*clock);

@@ -142,10 +142,6 @@ void Behavior::handle(const Event& e) {
   }
 }
 
-void Behavior::on_sensor_event(const Event& e) {
-  if (running()) handle(e);
-}
-
 void Behavior::child_event(Behavior&, const Event& event) {
   if (running()) propagate(event);
 }

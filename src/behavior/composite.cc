@@ -29,7 +29,6 @@ planet::Value to_value(const ConditionValue& v) {
 void SequentialBehavior::entry() {
   index_ = 0;
   round_ = 0;
-  failures_ = 0;
   if (children().empty()) {
     succeed();
     return;
@@ -42,7 +41,6 @@ void SequentialBehavior::start_child() { children()[index_]->start(); }
 void SequentialBehavior::child_done(Behavior& child) {
   if (!running() || index_ >= children().size() || children()[index_].get() != &child) return;
   if (child.status() == Status::failed) {
-    ++failures_;
     if (!options_.continue_on_failure) {
       fail(fmt::format("{} failed: {}", child.name(), child.failure_reason()));
       return;

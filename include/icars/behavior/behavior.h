@@ -150,7 +150,7 @@ class Behavior : public Owner {
   // without namespace ("OccupancyEvent", "SpeechEvent"), until exit.
   template <class S>
   void listen(const std::shared_ptr<S>& sensor) {
-    auto deliver = guard([this](const Event& e) { on_sensor_event(e); });
+    auto deliver = guard([this](const Event& e) { receive(e); });
     const auto id = sensor->subscribe([deliver](const auto& typed) mutable {
       deliver(rename(planet::to_event(typed)));
     });
@@ -211,6 +211,9 @@ class Behavior : public Owner {
     });
   }
 
+  // `e` renamed to its type without namespace ("home::OccupancyEvent" → "OccupancyEvent").
+  static Event rename(Event e);
+
   // "a call failed: <what the exception says>"
   static std::string describe(std::exception_ptr e);
   static std::string call_error(const std::string& op, std::exception_ptr e) {
@@ -226,8 +229,6 @@ class Behavior : public Owner {
   }
 
   friend class Composite;
-  static Event rename(Event e);
-  void on_sensor_event(const Event& e);
   void handle(const Event& e);
   void complete(Status status, std::string reason);
   void release();

@@ -38,7 +38,6 @@ class SequentialBehavior : public Behavior {
   Options options_;
   std::size_t index_ = 0;
   int round_ = 0;
-  int failures_ = 0;
 };
 
 // When a concurrent composite completes:

@@ -100,14 +100,9 @@ class Sense final : public Behavior {
                       current.furniture = furniture;
                       current.occupied = occupied;
                       current.time_ms = now().count();
-                      propagate(rename_event(planet::to_event(current)));
+                      propagate(rename(planet::to_event(current)));
                     });
            });
-  }
-  static Event rename_event(Event e) {
-    Event out("OccupancyEvent");
-    for (const auto& [name, value] : e.items()) out.put(name, value);
-    return out;
   }
 
   std::string type_;
@@ -127,19 +122,21 @@ class Driving : public Behavior {
     wheels_ = require<s::NavigationService>(query);
     listen(wheels_);
   }
+  // The completion of a go_to: a refusal (no path, unknown target) ends the drive.
+  auto refused(std::function<void(std::string)> unreachable) {
+    return [this, unreachable = std::move(unreachable)](std::exception_ptr e, double = 0) {
+      if (!e) return;
+      arrived_ = nullptr;
+      unreachable(describe(e));
+    };
+  }
   // Drives to a named waypoint, furniture or room; `arrived(ok)` when it gets there (ok) or stops
   // short (not ok). A target the robot cannot reach calls unreachable(reason).
   void drive_to(const std::string& target, std::function<void(bool)> arrived,
                 std::function<void(std::string)> unreachable) {
     arrived_ = std::move(arrived);
     invoke(*wheels_, fmt::format("go_to_waypoint({})", target),
-           [&](auto done) { wheels_->proxy().go_to_waypoint_async(target, done); },
-           [this, unreachable](std::exception_ptr e, double = 0) {
-             if (e) {
-               arrived_ = nullptr;
-               unreachable(describe(e));
-             }
-           });
+           [&](auto done) { wheels_->proxy().go_to_waypoint_async(target, done); }, refused(std::move(unreachable)));
   }
   void drive_to(double x, double y, std::function<void(bool)> arrived, std::function<void(std::string)> unreachable) {
     arrived_ = std::move(arrived);
@@ -148,13 +145,7 @@ class Driving : public Behavior {
     pose.y = y;
     pose.theta = 0;
     invoke(*wheels_, fmt::format("go_to({:.1f}, {:.1f})", x, y),
-           [&](auto done) { wheels_->proxy().go_to_async(pose, done); },
-           [this, unreachable](std::exception_ptr e, double = 0) {
-             if (e) {
-               arrived_ = nullptr;
-               unreachable(describe(e));
-             }
-           });
+           [&](auto done) { wheels_->proxy().go_to_async(pose, done); }, refused(std::move(unreachable)));
   }
   // Position events: the end of a drive.
   bool on_position(const Event& e) {
@@ -368,6 +359,10 @@ class VoiceControl : public Behavior {
     if (e.type() == "SpeechEvent") on_command(lower(e.get<std::string>("text")));
   }
   virtual void on_command(const std::string& text) = 0;
+  // "volume up" → +step, "volume down" → -step, else 0.
+  static int volume_change(const std::string& text, int step) {
+    return mentions(text, "up") ? step : mentions(text, "down") ? -step : 0;
+  }
 };
 
 class VoiceTVControl final : public VoiceControl {
@@ -396,7 +391,7 @@ class VoiceTVControl final : public VoiceControl {
         invoke(tv, fmt::format("set_channel({})", *n), [&](auto done) { tv.proxy().set_channel_async(*n, done); }, report);
       }
     } else if (mentions(text, "volume")) {
-      const int delta = mentions(text, "up") ? step_ : mentions(text, "down") ? -step_ : 0;
+      const int delta = volume_change(text, step_);
       if (delta == 0) return;
       // Read, then write: the TV's own state is the truth (someone may have used the remote).
       invoke(tv, "state", [&](auto done) { tv.proxy().state_async(done); },
@@ -435,7 +430,7 @@ class VoiceAudioControl final : public VoiceControl {
     } else if (text == "stop" || mentions(text, "stop music") || mentions(text, "stop the music")) {
       invoke(sp, "stop", [&](auto done) { sp.proxy().stop_async(done); }, report);
     } else if (mentions(text, "volume") && !mentions(text, "tv")) {
-      const int delta = mentions(text, "up") ? step_ : mentions(text, "down") ? -step_ : 0;
+      const int delta = volume_change(text, step_);
       if (delta == 0) return;
       invoke(sp, "state", [&](auto done) { sp.proxy().state_async(done); },
              [this, delta, report](std::exception_ptr e, home::SpeakerState state = {}) {
