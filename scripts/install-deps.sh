@@ -8,6 +8,8 @@ packages=(
   libasio-dev libssl-dev
   libspdlog-dev libfmt-dev libcli11-dev libpugixml-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
+  libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
 )
 
 missing=()

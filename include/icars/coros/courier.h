@@ -1,0 +1,147 @@
+// The courier delivery application (COROS 5.2): a market where a user agent auctions
+// deliveries between two offices and robots bid their planned travel cost.
+//
+// Protocol (docs/coros.md has the message sequence and the failure cases):
+//   1. The user's CourierUserOperator broadcasts AUCTION(task, round, pickup, dropoff, window),
+//      repeating it a few times within the bid window so a lost datagram does not lose bids.
+//   2. Each CourierRobotOperator that is not excluded bids the length of the path it would
+//      drive, planned over the map: from the end of its current queue (or where it stands)
+//      to the pickup office, then to the dropoff office. It answers every copy of the auction
+//      with the same bid.
+//   3. The auction closes when every robot in the user's neighbour table has bid, or when the
+//      window ends. The lowest cost wins; equal costs go to the smaller robot id. No bid:
+//      the task is auctioned again (round + 1) after a pause, up to max_rounds.
+//   4. The user resends AWARD until the winner's AWARD_ACK; a winner that never answers is
+//      excluded and the task auctioned again. The robot queues the CourierDeliveryTask
+//      (MoveToTask to the pickup, then to the dropoff), broadcasts TASK_STATUS at each stage
+//      and resends RESULT until RESULT_ACK.
+//   5. Fault tolerance: when the assigned robot leaves the user's neighbour table (its HELLOs
+//      stopped) before the result, the task is auctioned again with round + 1, excluding it.
+//      Every message carries (task, round): anything about an older round is stale, and a
+//      robot holding a stale assignment drops it when it hears of a newer round (a REVOKE,
+//      or an AUCTION of the same task). So a task is assigned to one robot at a time, and
+//      completed once: duplicates and reordering change nothing, losses are repaired by
+//      resending.
+#pragma once
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "icars/coros/agent.h"
+#include "icars/coros/execution.h"
+#include "icars/coros/robot.h"
+
+namespace icars::coros {
+
+// Drive to the pickup office, take the courier, drive to the dropoff office.
+class CourierDeliveryTask : public SequenceTask {
+ public:
+  CourierDeliveryTask(const Place& pickup, const Place& dropoff);
+};
+
+class CourierRobotOperator : public RobotOperator {
+ public:
+  CourierRobotOperator(std::shared_ptr<Robot> robot, std::shared_ptr<const MapPlanner> map);
+  void init(Agent& agent) override;
+
+  // What this robot would bid now for a delivery; nullopt when it cannot do it.
+  std::optional<double> cost_of(const Place& pickup, const Place& dropoff) const;
+
+ private:
+  struct Assignment {
+    std::string task_id, auctioneer;
+    int round = 1;
+    Place pickup, dropoff;
+    asio::ip::udp::endpoint reply_to;
+    TaskStage stage = TaskStage::assigned;
+    double distance = 0;
+    double started_s = 0;
+    double start_odometer = 0;
+    std::shared_ptr<GroupAction> result_sender;
+  };
+  void on_auction(const AuctionMessage& m, const Envelope& e);
+  void on_award(const AwardMessage& m, const Envelope& e);
+  void on_revoke(const RevokeMessage& m, const Envelope& e);
+  void on_result_ack(const ResultAckMessage& m, const Envelope& e);
+  void drop(const std::string& task_id, const std::string& why);
+  void set_stage(Assignment& a, TaskStage stage);
+  void finish(const std::string& task_id, const TaskOutcome& outcome);
+
+  std::shared_ptr<const MapPlanner> map_;
+  std::map<std::string, Assignment> assignments_;   // task id -> held assignment
+  std::map<std::string, int> newest_round_;         // task id -> newest round heard of
+  std::map<std::string, double> bids_;              // "task#round" -> bid sent
+  std::set<std::string> finished_;                  // "task#round" already ended here
+};
+
+struct DeliveryRecord {
+  std::string task_id;
+  Place pickup, dropoff;
+  int round = 0;
+  std::string robot;  // assigned robot ("" while auctioning)
+  double cost = 0;
+  std::map<std::string, double> bids;  // this round's bids
+  std::vector<std::string> excluded;
+  bool finished = false;
+  bool success = false;
+  double distance = 0;
+  double duration_s = 0;
+  std::string detail;
+  Clock::time_point requested{}, auction_started{}, assigned_at{}, finished_at{};
+  std::vector<std::string> history;  // "round 1: robot3 won (12.4 m)", ...
+};
+
+class CourierUserOperator : public SimpleOperator {
+ public:
+  struct Options {
+    int max_rounds = 10;
+    int announcements = 3;  // copies of each AUCTION within the window
+  };
+  explicit CourierUserOperator(std::shared_ptr<const MapPlanner> map)
+      : CourierUserOperator(std::move(map), Options{}) {}
+  CourierUserOperator(std::shared_ptr<const MapPlanner> map, Options options);
+  void init(Agent& agent) override;
+  void shutdown() override;
+
+  // On the agent's thread: auctions a delivery between two places of the map; returns the
+  // task id. Throws CorosError for an unknown place.
+  std::string request(const std::string& pickup, const std::string& dropoff);
+  const std::map<std::string, DeliveryRecord>& deliveries() const { return deliveries_; }
+  bool all_finished() const;
+  void on_finished(std::function<void(const DeliveryRecord&)> fn) { finished_fn_ = std::move(fn); }
+
+ private:
+  struct Auction {
+    std::shared_ptr<Timer> closer;
+    std::shared_ptr<GroupAction> announcer, awarder;
+    std::map<std::string, asio::ip::udp::endpoint> bidders;
+  };
+  void start_round(DeliveryRecord& record);
+  void close_round(const std::string& task_id);
+  void on_bid(const BidMessage& m, const Envelope& e);
+  void on_award_ack(const AwardAckMessage& m, const Envelope& e);
+  void on_status(const TaskStatusMessage& m, const Envelope& e);
+  void on_result(const ResultMessage& m, const Envelope& e);
+  void on_neighbor_left(const AgentState& agent);
+  void reauction(DeliveryRecord& record, const std::string& robot, const std::string& why);
+  void start_configured_deliveries();
+  void conclude(DeliveryRecord& record);  // finished: emit, notify, maybe all_done
+
+  std::shared_ptr<const MapPlanner> map_;
+  Options options_;
+  std::unique_ptr<ActionHandler> actions_;
+  std::map<std::string, DeliveryRecord> deliveries_;
+  std::map<std::string, Auction> auctions_;
+  std::function<void(const DeliveryRecord&)> finished_fn_;
+  std::shared_ptr<Timer> start_timer_;
+  std::vector<std::shared_ptr<Timer>> delivery_timers_;
+  int next_task_ = 1;
+  bool configured_started_ = false;
+};
+
+}  // namespace icars::coros

@@ -1,0 +1,223 @@
+// COROS application messages and their datagram encoding.
+//
+// Agents exchange application messages (COROS 4.2, BaseMessage) in UDP datagrams. Each
+// message is a PLANET valued struct, so it is encoded by PLANET's serializer and is the same
+// on every platform (the paper serialized with Boost and named platform independence as
+// future work). A datagram is:
+//
+//   magic "CR" | version u8 = 1 | code u16 | sender string | tagged value
+//
+// all big-endian (docs/coros.md). The tagged value carries the struct's type name, so a
+// datagram whose code and body disagree is rejected instead of misread. decode_datagram()
+// never reads out of range and throws CorosError for anything malformed.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "icars/planet/serializer.h"
+
+namespace icars::coros {
+
+inline constexpr std::size_t kMaxDatagram = 65507;  // the largest UDP payload over IPv4
+inline constexpr std::uint8_t kProtocolVersion = 1;
+
+// A datagram or configuration that cannot be used; what() says what was wrong.
+class CorosError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Message codes (the paper's message_code). Applications add their own from 1000 up.
+enum class MessageCode : std::uint16_t {
+  hello = 1,         // discovery: who I am, where, how busy
+  auction = 10,      // a task for sale: bid before the deadline
+  bid = 11,          // a robot's cost for a task
+  award = 12,        // the auctioneer gives the task to the winner
+  award_ack = 13,    // the winner accepts (or refuses) the award
+  revoke = 14,       // the auctioneer takes a task back (a newer round exists)
+  task_status = 15,  // progress of a task, broadcast by the robot doing it
+  result = 16,       // the task ended: delivered or failed
+  result_ack = 17,   // the auctioneer got the result
+};
+std::string_view to_string(MessageCode code);
+
+// A named place on the map with its coordinates (metres, map frame).
+struct Place {
+  std::string name;
+  double x = 0;
+  double y = 0;
+  bool operator==(const Place&) const = default;
+};
+
+// HELLO (COROS 5.1): id, ip, port, role, status and timestamp, plus the agent's position and
+// how many tasks it holds, which monitors show and auctioneers may use.
+struct HelloMessage {
+  std::string id;
+  std::string ip;
+  std::int32_t port = 0;
+  std::string role;    // robot, user, monitor
+  std::string status;  // idle, busy, failed
+  double timestamp = 0;  // sender's wall clock, seconds since the Unix epoch
+  double x = 0;
+  double y = 0;
+  std::int32_t load = 0;  // tasks queued or in progress
+  static constexpr MessageCode kCode = MessageCode::hello;
+  bool operator==(const HelloMessage&) const = default;
+};
+
+// A delivery for sale. Rounds count auctions of the same task: a task whose robot died is
+// auctioned again with round + 1, and everything about an older round is stale.
+struct AuctionMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string auctioneer;
+  Place pickup;
+  Place dropoff;
+  std::int32_t window_ms = 0;        // bids are taken for this long after the first announcement
+  std::vector<std::string> exclude;  // robots that must not bid (failed this task before)
+  static constexpr MessageCode kCode = MessageCode::auction;
+  bool operator==(const AuctionMessage&) const = default;
+};
+
+struct BidMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  double cost = 0;  // metres the robot would drive, planned over the map
+  static constexpr MessageCode kCode = MessageCode::bid;
+  bool operator==(const BidMessage&) const = default;
+};
+
+struct AwardMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;  // the winner
+  Place pickup;
+  Place dropoff;
+  double cost = 0;  // the winning bid
+  static constexpr MessageCode kCode = MessageCode::award;
+  bool operator==(const AwardMessage&) const = default;
+};
+
+struct AwardAckMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  bool accepted = true;
+  std::string reason;  // why not, when refused
+  static constexpr MessageCode kCode = MessageCode::award_ack;
+  bool operator==(const AwardAckMessage&) const = default;
+};
+
+struct RevokeMessage {
+  std::string task_id;
+  std::int32_t round = 1;  // every assignment of this round or older is void
+  std::string robot;
+  static constexpr MessageCode kCode = MessageCode::revoke;
+  bool operator==(const RevokeMessage&) const = default;
+};
+
+struct TaskStatusMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  std::string auctioneer;
+  std::string state;  // assigned, to_pickup, picked_up, to_dropoff, delivered, failed
+  double distance = 0;  // metres driven for this task so far
+  double timestamp = 0;
+  static constexpr MessageCode kCode = MessageCode::task_status;
+  bool operator==(const TaskStatusMessage&) const = default;
+};
+
+// The paper's ResultMessage: a task ended.
+struct ResultMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  bool success = false;
+  double distance = 0;    // metres driven for the task
+  double duration_s = 0;  // simulated seconds from award to the end
+  std::string detail;
+  static constexpr MessageCode kCode = MessageCode::result;
+  bool operator==(const ResultMessage&) const = default;
+};
+
+struct ResultAckMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  static constexpr MessageCode kCode = MessageCode::result_ack;
+  bool operator==(const ResultAckMessage&) const = default;
+};
+
+}  // namespace icars::coros
+
+PLANET_VALUED(icars::coros::Place, name, x, y);
+PLANET_VALUED(icars::coros::HelloMessage, id, ip, port, role, status, timestamp, x, y, load);
+PLANET_VALUED(icars::coros::AuctionMessage, task_id, round, auctioneer, pickup, dropoff, window_ms,
+              exclude);
+PLANET_VALUED(icars::coros::BidMessage, task_id, round, robot, cost);
+PLANET_VALUED(icars::coros::AwardMessage, task_id, round, robot, pickup, dropoff, cost);
+PLANET_VALUED(icars::coros::AwardAckMessage, task_id, round, robot, accepted, reason);
+PLANET_VALUED(icars::coros::RevokeMessage, task_id, round, robot);
+PLANET_VALUED(icars::coros::TaskStatusMessage, task_id, round, robot, auctioneer, state, distance,
+              timestamp);
+PLANET_VALUED(icars::coros::ResultMessage, task_id, round, robot, success, distance, duration_s,
+              detail);
+PLANET_VALUED(icars::coros::ResultAckMessage, task_id, round, robot);
+
+namespace icars::coros {
+
+// An application message: any PLANET valued struct with a static kCode.
+template <class M>
+concept Message = planet::Encodable<M> && requires {
+  { M::kCode } -> std::convertible_to<MessageCode>;
+};
+
+// A datagram taken apart: the header, and the body still encoded (decoded by body<M>()).
+struct Datagram {
+  MessageCode code{};
+  std::string sender;
+  std::vector<std::byte> body;  // the tagged value
+
+  template <Message M>
+  M body_as() const {
+    try {
+      planet::Reader r(body);
+      M m = planet::decode_tagged<M>(r, to_string(M::kCode));
+      if (r.remaining() != 0) {
+        throw CorosError(std::string(to_string(M::kCode)) + ": " +
+                         std::to_string(r.remaining()) + " bytes after the message");
+      }
+      return m;
+    } catch (const planet::Error& e) {
+      throw CorosError(std::string("malformed ") + std::string(to_string(M::kCode)) + " from " +
+                       sender + ": " + e.what());
+    }
+  }
+};
+
+std::vector<std::byte> encode_header(MessageCode code, std::string_view sender);
+
+template <Message M>
+std::vector<std::byte> encode_datagram(std::string_view sender, const M& message) {
+  std::vector<std::byte> out = encode_header(M::kCode, sender);
+  planet::Writer w(out);
+  planet::encode_tagged(w, message);
+  if (out.size() > kMaxDatagram) {
+    throw CorosError(std::string(to_string(M::kCode)) + " of " + std::to_string(out.size()) +
+                     " bytes does not fit in a datagram");
+  }
+  return out;
+}
+
+// Checks magic, version and sizes and splits header from body; throws CorosError.
+Datagram decode_datagram(std::span<const std::byte> bytes);
+
+}  // namespace icars::coros

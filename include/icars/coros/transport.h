@@ -1,0 +1,88 @@
+// COROS communication: the agent server and client over UDP (COROS 4.2, AbstractServer and
+// AbstractClient).
+//
+// An agent owns two sockets on its io_context:
+//   - its own unicast socket (ip:port, port 0 picks a free one), which sends everything —
+//     unicast replies and broadcasts — and receives the replies addressed to the agent;
+//   - a socket bound to the fleet's shared broadcast port (SO_REUSEADDR, so every agent on a
+//     host binds it), which receives what agents broadcast (HELLO, auctions, task states).
+// A broadcast is one datagram to the fleet's broadcast address (127.255.255.255 on one host,
+// the subnet's broadcast address on a network) at the shared port; every agent, the sender
+// included, gets it. Receivers learn the sender's unicast endpoint from the datagram's source.
+//
+// FaultInjection is the test hook: it drops, duplicates and delays (so reorders) outgoing
+// datagrams at random, from a seed, to show the protocols survive a lossy network.
+#pragma once
+
+#include <asio/io_context.hpp>
+#include <asio/ip/udp.hpp>
+#include <asio/steady_timer.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <random>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "icars/coros/messages.h"
+
+namespace icars::coros {
+
+struct FaultInjection {
+  double drop = 0;       // probability that a datagram is not sent
+  double duplicate = 0;  // probability that it is sent twice
+  double delay = 0;      // probability that it is held back, so later datagrams overtake it
+  int max_delay_ms = 50;
+  std::uint64_t seed = 1;
+  bool active() const { return drop > 0 || duplicate > 0 || delay > 0; }
+  // "drop=0.2,duplicate=0.1,delay=0.3,max_delay_ms=80,seed=7"; throws CorosError.
+  static FaultInjection parse(const std::string& spec);
+};
+
+struct TransportOptions {
+  std::string ip = "127.0.0.1";  // address of the unicast socket
+  std::uint16_t port = 0;        // 0: any free port
+  std::string broadcast_address = "127.255.255.255";
+  std::uint16_t broadcast_port = 47800;
+  FaultInjection faults;
+};
+
+struct TransportStats {
+  std::uint64_t sent = 0, received = 0, dropped_by_hook = 0, duplicated_by_hook = 0,
+                delayed_by_hook = 0, malformed = 0, send_errors = 0;
+};
+
+class UdpTransport {
+ public:
+  using Receiver = std::function<void(const Datagram&, const asio::ip::udp::endpoint& from)>;
+  // Called with what was wrong with a datagram that could not be decoded.
+  using ErrorSink = std::function<void(const std::string&, const asio::ip::udp::endpoint& from)>;
+
+  // Binds both sockets; throws CorosError naming the address when it cannot.
+  UdpTransport(asio::io_context& io, TransportOptions options);
+  ~UdpTransport();
+  UdpTransport(const UdpTransport&) = delete;
+  UdpTransport& operator=(const UdpTransport&) = delete;
+
+  // Starts receiving; handlers run on the io_context. Own datagrams (broadcasts coming back)
+  // are not delivered.
+  void start(Receiver on_datagram, ErrorSink on_error = {});
+  void close();
+
+  // Both return at once; the datagram leaves from the io_context (errors are counted).
+  void send_to(const asio::ip::udp::endpoint& to, std::vector<std::byte> datagram);
+  void broadcast(std::vector<std::byte> datagram);
+
+  asio::ip::udp::endpoint local_endpoint() const;
+  const TransportOptions& options() const { return options_; }
+  TransportStats stats() const;
+
+ private:
+  struct Impl;
+  std::shared_ptr<Impl> impl_;
+  TransportOptions options_;
+};
+
+}  // namespace icars::coros

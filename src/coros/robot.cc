@@ -1,0 +1,148 @@
+#include "icars/coros/robot.h"
+
+#include <fmt/format.h>
+
+#include <charconv>
+
+#include "icars/coros/messages.h"
+
+namespace icars::coros {
+
+std::string_view to_string(RobotStatus status) {
+  switch (status) {
+    case RobotStatus::idle: return "idle";
+    case RobotStatus::moving: return "moving";
+    case RobotStatus::failed: return "failed";
+  }
+  return "unknown";
+}
+
+// --- MapPlanner ----------------------------------------------------------------------------
+
+MapPlanner::MapPlanner(sim::House house, double robot_radius)
+    : house_(std::move(house)), grid_(house_, robot_radius) {}
+
+std::shared_ptr<const MapPlanner> MapPlanner::load(const std::string& file, double robot_radius) {
+  try {
+    return std::make_shared<const MapPlanner>(sim::load_house(file), robot_radius);
+  } catch (const sim::HouseError& e) {
+    throw CorosError(std::string("map: ") + e.what());
+  }
+}
+
+namespace {
+std::optional<sim::Point> parse_xy(const std::string& text) {
+  const auto comma = text.find(',');
+  if (comma == std::string::npos) return std::nullopt;
+  sim::Point p;
+  const char* b = text.data();
+  const char* e = b + text.size();
+  auto r1 = std::from_chars(b, b + comma, p.x);
+  auto r2 = std::from_chars(b + comma + 1, e, p.y);
+  if (r1.ec != std::errc{} || r1.ptr != b + comma || r2.ec != std::errc{} || r2.ptr != e) {
+    return std::nullopt;
+  }
+  return p;
+}
+}  // namespace
+
+sim::Point MapPlanner::locate(const std::string& name) const {
+  if (auto p = parse_xy(name)) {
+    if (!grid_.free(*p)) {
+      throw CorosError(fmt::format("place {} is not free space on map '{}'", name, house_.name));
+    }
+    return *p;
+  }
+  if (auto p = house_.locate(name)) return *p;
+  throw CorosError(fmt::format("no place '{}' on map '{}' (expected a waypoint, furniture, room "
+                               "or \"x,y\")",
+                               name, house_.name));
+}
+
+std::optional<std::vector<sim::Point>> MapPlanner::path(sim::Point from, sim::Point to) const {
+  return sim::plan_path(grid_, from, to);
+}
+
+std::optional<double> MapPlanner::path_cost(sim::Point from, sim::Point to) const {
+  auto p = path(from, to);
+  if (!p) return std::nullopt;
+  return sim::path_length(*p);
+}
+
+// --- SimRobot ------------------------------------------------------------------------------
+
+namespace {
+sim::House alone_on(sim::House map, const SimRobotOptions& o) {
+  map.robots = {sim::RobotSpec{o.id, o.start, o.speed, o.radius}};
+  map.users.clear();
+  map.devices.clear();
+  return map;
+}
+}  // namespace
+
+SimRobot::SimRobot(sim::House map, SimRobotOptions options)
+    : options_(std::move(options)), clock_(map.start_time), last_(options_.start.position()) {
+  sim::WorldOptions world_options;
+  world_options.report_every = sim::SimTime{200};
+  world_ = std::make_unique<sim::World>(alone_on(std::move(map), options_), clock_, world_options);
+  track_.emplace_back(clock_.now(), last_);
+  listener_ = world_->on_robot_pose([this](const std::string&, const sim::Pose& pose, bool moving) {
+    std::lock_guard lock(mutex_);
+    odometer_ += sim::distance(last_, pose.position());
+    last_ = pose.position();
+    moving_ = moving;
+    track_.emplace_back(clock_.now(), last_);
+  });
+  driver_ = std::make_unique<sim::RealTimeDriver>(clock_, options_.speedup);
+  driver_->start();
+}
+
+SimRobot::~SimRobot() {
+  driver_->stop();
+  world_->remove_listener(listener_);
+  world_.reset();
+}
+
+sim::Pose SimRobot::pose() const { return world_->robot_pose(options_.id); }
+
+RobotStatus SimRobot::status() const {
+  return world_->robot_moving(options_.id) ? RobotStatus::moving : RobotStatus::idle;
+}
+
+void SimRobot::navigate_to(sim::Point target, std::function<void(NavigationResult)> done) {
+  const double start = odometer();
+  auto path = world_->move_robot(options_.id, target, [this, start, done](bool arrived) {
+    const sim::Point now = world_->robot_pose(options_.id).position();
+    double driven = 0;
+    {
+      std::lock_guard lock(mutex_);
+      odometer_ += sim::distance(last_, now);
+      last_ = now;
+      driven = odometer_ - start;
+    }
+    done(NavigationResult{arrived, driven, arrived ? "" : "stopped before arriving"});
+  });
+  if (!path) {
+    done(NavigationResult{false, 0,
+                          fmt::format("no path from ({:.2f}, {:.2f}) to ({:.2f}, {:.2f})",
+                                      pose().x, pose().y, target.x, target.y)});
+  }
+}
+
+void SimRobot::stop() { world_->stop_robot(options_.id); }
+
+double SimRobot::odometer() const {
+  std::lock_guard lock(mutex_);
+  return odometer_;
+}
+
+double SimRobot::clock_seconds() const {
+  return std::chrono::duration<double>(clock_.now() - world_->house().start_time).count();
+}
+
+std::vector<std::pair<sim::SimTime, sim::Point>> SimRobot::track() const {
+  std::lock_guard lock(mutex_);
+  return track_;
+}
+
+}  // namespace icars::coros

@@ -1,0 +1,227 @@
+#include "icars/coros/transport.h"
+
+#include <fmt/format.h>
+
+#include <array>
+#include <asio/ip/address.hpp>
+#include <asio/socket_base.hpp>
+#include <atomic>
+#include <charconv>
+#include <mutex>
+#include <sstream>
+
+namespace icars::coros {
+
+namespace {
+
+double parse_probability(const std::string& key, const std::string& value) {
+  double v = 0;
+  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+  if (ec != std::errc{} || end != value.data() + value.size() || !(v >= 0 && v <= 1)) {
+    throw CorosError(fmt::format("fault injection: {}={} must be a probability from 0 to 1", key,
+                                 value));
+  }
+  return v;
+}
+
+template <class T>
+T parse_integer(const std::string& key, const std::string& value) {
+  T v{};
+  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+  if (ec != std::errc{} || end != value.data() + value.size()) {
+    throw CorosError(fmt::format("fault injection: {}={} must be a whole number", key, value));
+  }
+  return v;
+}
+
+}  // namespace
+
+FaultInjection FaultInjection::parse(const std::string& spec) {
+  FaultInjection f;
+  std::stringstream in(spec);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    if (item.empty()) continue;
+    const auto eq = item.find('=');
+    if (eq == std::string::npos) {
+      throw CorosError(fmt::format("fault injection: '{}' is not key=value", item));
+    }
+    const std::string key = item.substr(0, eq), value = item.substr(eq + 1);
+    if (key == "drop") f.drop = parse_probability(key, value);
+    else if (key == "duplicate") f.duplicate = parse_probability(key, value);
+    else if (key == "delay") f.delay = parse_probability(key, value);
+    else if (key == "max_delay_ms") f.max_delay_ms = parse_integer<int>(key, value);
+    else if (key == "seed") f.seed = parse_integer<std::uint64_t>(key, value);
+    else {
+      throw CorosError(fmt::format(
+          "fault injection: unknown key '{}' (expected drop, duplicate, delay, max_delay_ms, seed)",
+          key));
+    }
+  }
+  if (f.max_delay_ms < 1) throw CorosError("fault injection: max_delay_ms must be at least 1");
+  return f;
+}
+
+struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
+  Impl(asio::io_context& io_context, const TransportOptions& options)
+      : io(io_context), unicast(io_context), group(io_context), rng(options.faults.seed),
+        faults(options.faults) {}
+
+  asio::io_context& io;
+  asio::ip::udp::socket unicast;
+  asio::ip::udp::socket group;
+  asio::ip::udp::endpoint broadcast_to;
+  asio::ip::udp::endpoint self;
+  Receiver on_datagram;
+  ErrorSink on_error;
+  std::mt19937_64 rng;
+  FaultInjection faults;
+  mutable std::mutex stats_mutex;
+  TransportStats stats;
+  bool closed = false;
+
+  struct Receive {
+    asio::ip::udp::socket* socket;
+    std::array<std::byte, kMaxDatagram + 1> buffer{};
+    asio::ip::udp::endpoint from;
+  };
+
+  void count(std::uint64_t TransportStats::*field) {
+    std::lock_guard lock(stats_mutex);
+    ++(stats.*field);
+  }
+
+  void receive(const std::shared_ptr<Receive>& r) {
+    r->socket->async_receive_from(
+        asio::buffer(r->buffer), r->from,
+        [self = shared_from_this(), r](const std::error_code& ec, std::size_t n) {
+          if (self->closed || ec == asio::error::operation_aborted) return;
+          if (!ec) self->deliver(std::span<const std::byte>(r->buffer.data(), n), r->from);
+          self->receive(r);
+        });
+  }
+
+  void deliver(std::span<const std::byte> bytes, const asio::ip::udp::endpoint& from) {
+    if (from.port() == self.port() &&
+        (from.address() == self.address() || self.address().is_unspecified())) {
+      return;  // our own broadcast, heard back
+    }
+    Datagram d;
+    try {
+      d = decode_datagram(bytes);
+    } catch (const CorosError& e) {
+      count(&TransportStats::malformed);
+      if (on_error) on_error(e.what(), from);
+      return;
+    }
+    count(&TransportStats::received);
+    if (on_datagram) on_datagram(d, from);
+  }
+
+  void transmit(const asio::ip::udp::endpoint& to,
+                const std::shared_ptr<std::vector<std::byte>>& bytes) {
+    unicast.async_send_to(asio::buffer(*bytes), to,
+                          [self = shared_from_this(), bytes](const std::error_code& ec, std::size_t) {
+                            if (ec && ec != asio::error::operation_aborted) {
+                              self->count(&TransportStats::send_errors);
+                            } else if (!ec) {
+                              self->count(&TransportStats::sent);
+                            }
+                          });
+  }
+
+  // Applies the fault injection hook, then transmits; on the io_context.
+  void send(const asio::ip::udp::endpoint& to, std::shared_ptr<std::vector<std::byte>> bytes) {
+    if (closed) return;
+    if (!faults.active()) {
+      transmit(to, bytes);
+      return;
+    }
+    std::uniform_real_distribution<double> p(0, 1);
+    if (p(rng) < faults.drop) {
+      count(&TransportStats::dropped_by_hook);
+      return;
+    }
+    const int copies = p(rng) < faults.duplicate ? 2 : 1;
+    if (copies == 2) count(&TransportStats::duplicated_by_hook);
+    for (int i = 0; i < copies; ++i) {
+      if (p(rng) < faults.delay) {
+        count(&TransportStats::delayed_by_hook);
+        std::uniform_int_distribution<int> ms(1, faults.max_delay_ms);
+        auto timer = std::make_shared<asio::steady_timer>(io, std::chrono::milliseconds(ms(rng)));
+        timer->async_wait([self = shared_from_this(), timer, to, bytes](const std::error_code& ec) {
+          if (!ec && !self->closed) self->transmit(to, bytes);
+        });
+      } else {
+        transmit(to, bytes);
+      }
+    }
+  }
+};
+
+UdpTransport::UdpTransport(asio::io_context& io, TransportOptions options)
+    : impl_(std::make_shared<Impl>(io, options)), options_(std::move(options)) {
+  std::error_code ec;
+  const auto ip = asio::ip::make_address(options_.ip, ec);
+  if (ec) throw CorosError(fmt::format("agent address '{}' is not an IPv4 address", options_.ip));
+  const auto bcast = asio::ip::make_address(options_.broadcast_address, ec);
+  if (ec || !bcast.is_v4()) {
+    throw CorosError(fmt::format("broadcast address '{}' is not an IPv4 address",
+                                 options_.broadcast_address));
+  }
+  impl_->unicast.open(asio::ip::udp::v4());
+  impl_->unicast.set_option(asio::socket_base::broadcast(true));
+  impl_->unicast.bind({ip, options_.port}, ec);
+  if (ec) {
+    throw CorosError(fmt::format("cannot bind the agent socket to {}:{}: {}", options_.ip,
+                                 options_.port, ec.message()));
+  }
+  impl_->self = impl_->unicast.local_endpoint();
+  impl_->group.open(asio::ip::udp::v4());
+  impl_->group.set_option(asio::socket_base::reuse_address(true));
+  impl_->group.bind({asio::ip::address_v4::any(), options_.broadcast_port}, ec);
+  if (ec) {
+    throw CorosError(fmt::format("cannot bind the fleet's broadcast port {}: {}",
+                                 options_.broadcast_port, ec.message()));
+  }
+  impl_->broadcast_to = {bcast, options_.broadcast_port};
+}
+
+UdpTransport::~UdpTransport() { close(); }
+
+void UdpTransport::start(Receiver on_datagram, ErrorSink on_error) {
+  impl_->on_datagram = std::move(on_datagram);
+  impl_->on_error = std::move(on_error);
+  auto unicast = std::make_shared<Impl::Receive>();
+  unicast->socket = &impl_->unicast;
+  auto group = std::make_shared<Impl::Receive>();
+  group->socket = &impl_->group;
+  impl_->receive(unicast);
+  impl_->receive(group);
+}
+
+void UdpTransport::close() {
+  if (impl_->closed) return;
+  impl_->closed = true;
+  std::error_code ec;
+  impl_->unicast.close(ec);
+  impl_->group.close(ec);
+}
+
+void UdpTransport::send_to(const asio::ip::udp::endpoint& to, std::vector<std::byte> datagram) {
+  auto bytes = std::make_shared<std::vector<std::byte>>(std::move(datagram));
+  asio::post(impl_->io, [impl = impl_, to, bytes] { impl->send(to, bytes); });
+}
+
+void UdpTransport::broadcast(std::vector<std::byte> datagram) {
+  send_to(impl_->broadcast_to, std::move(datagram));
+}
+
+asio::ip::udp::endpoint UdpTransport::local_endpoint() const { return impl_->self; }
+
+TransportStats UdpTransport::stats() const {
+  std::lock_guard lock(impl_->stats_mutex);
+  return impl_->stats;
+}
+
+}  // namespace icars::coros
