@@ -7,9 +7,9 @@
 // Events go to stdout as JSON lines ({"event":"awarded",...}), for scripts and the scenario
 // command; the monitor's tables go to stderr. SIGINT/SIGTERM stop the agent cleanly; a user
 // with exit_when_done stops after its last delivery.
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include <CLI/CLI.hpp>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
@@ -99,7 +99,8 @@ int run(const std::string& config_file, int monitor_ms) {
     agent.add_operator(std::make_shared<TaskObserverOperator>());
   }
 #ifdef ICARS_WITH_ROS
-  if (config.robot_kind == "ros") knowledge = std::make_unique<ros_layer::KnowledgePublisher>(agent);
+  if (config.robot_kind == "ros")
+    knowledge = std::make_unique<ros_layer::KnowledgePublisher>(agent);
 #endif
 
   agent.start();

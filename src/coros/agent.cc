@@ -112,13 +112,14 @@ void Agent::schedule(const std::shared_ptr<Timer>& timer, std::chrono::milliseco
                      std::function<void()> fn, bool repeat) {
   timer->timer_.expires_after(delay);
   std::weak_ptr<Timer> weak = timer;
-  timer->timer_.async_wait([this, weak, delay, fn = std::move(fn), repeat](const std::error_code& ec) {
-    auto t = weak.lock();
-    if (ec || !t || !t->active_) return;
-    if (!repeat) t->active_ = false;
-    fn();
-    if (repeat && t->active_) schedule(t, delay, fn, true);
-  });
+  timer->timer_.async_wait(
+      [this, weak, delay, fn = std::move(fn), repeat](const std::error_code& ec) {
+        auto t = weak.lock();
+        if (ec || !t || !t->active_) return;
+        if (!repeat) t->active_ = false;
+        fn();
+        if (repeat && t->active_) schedule(t, delay, fn, true);
+      });
 }
 
 std::shared_ptr<Timer> Agent::after(std::chrono::milliseconds delay, std::function<void()> fn) {

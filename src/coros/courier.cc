@@ -34,10 +34,15 @@ void CourierRobotOperator::init(Agent& agent) {
       [this](const ResultAckMessage& m, const Envelope& e) { on_result_ack(m, e); });
   // Task states are broadcast at every stage and again every few HELLO periods, so monitors
   // that missed a datagram catch up.
-  agent.every(agent.config().hello_period * 3, [this] {
+  status_timer_ = agent.every(agent.config().hello_period * 3, [this] {
     for (auto& [id, a] : assignments_) {
-      TaskStatusMessage s{a.task_id, a.round, this->agent().id(), a.auctioneer,
-                          std::string(to_string(a.stage)), a.distance, Agent::wall_seconds()};
+      TaskStatusMessage s{a.task_id,
+                          a.round,
+                          this->agent().id(),
+                          a.auctioneer,
+                          std::string(to_string(a.stage)),
+                          a.distance,
+                          Agent::wall_seconds()};
       this->agent().broadcast(s);
     }
   });
@@ -73,7 +78,8 @@ std::optional<double> CourierRobotOperator::cost_of(const Place& pickup,
 void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e) {
   int& newest = newest_round_[m.task_id];
   newest = std::max(newest, m.round);
-  if (auto it = assignments_.find(m.task_id); it != assignments_.end() && it->second.round < m.round) {
+  if (auto it = assignments_.find(m.task_id);
+      it != assignments_.end() && it->second.round < m.round) {
     drop(m.task_id, fmt::format("the task is auctioned again (round {})", m.round));
   }
   if (std::find(m.exclude.begin(), m.exclude.end(), agent().id()) != m.exclude.end()) return;
@@ -84,7 +90,9 @@ void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e
   if (bid == bids_.end()) {
     const auto cost = cost_of(m.pickup, m.dropoff);
     if (!cost) {
-      agent().emit({{"event", "no_bid"}, {"task", m.task_id}, {"round", m.round},
+      agent().emit({{"event", "no_bid"},
+                    {"task", m.task_id},
+                    {"round", m.round},
                     {"reason", "no path to " + m.pickup.name + " or " + m.dropoff.name}});
       return;
     }
@@ -141,9 +149,8 @@ void CourierRobotOperator::on_award(const AwardMessage& m, const Envelope& e) {
       set_stage(it->second, TaskStage::to_dropoff);
     }
   });
-  performer().perform(task_id, task, [this](const std::string& id, TaskOutcome outcome) {
-    finish(id, outcome);
-  });
+  performer().perform(task_id, task,
+                      [this](const std::string& id, TaskOutcome outcome) { finish(id, outcome); });
   refresh_state();
 }
 
@@ -152,8 +159,11 @@ void CourierRobotOperator::set_stage(Assignment& a, TaskStage stage) {
   if (stage != TaskStage::delivered && stage != TaskStage::failed) {
     a.distance = robot().odometer() - a.start_odometer;
   }
-  agent().emit({{"event", "task_stage"}, {"task", a.task_id}, {"round", a.round},
-                {"stage", to_string(stage)}, {"distance", a.distance}});
+  agent().emit({{"event", "task_stage"},
+                {"task", a.task_id},
+                {"round", a.round},
+                {"stage", to_string(stage)},
+                {"distance", a.distance}});
   TaskState s;
   s.id = a.task_id;
   s.auctioneer = a.auctioneer;
@@ -177,8 +187,10 @@ void CourierRobotOperator::finish(const std::string& task_id, const TaskOutcome&
   a.distance = outcome.distance;
   set_stage(a, outcome.success ? TaskStage::delivered : TaskStage::failed);
   finished_.insert(round_key(a.task_id, a.round));
-  const ResultMessage result{a.task_id, a.round,  agent().id(), outcome.success, outcome.distance,
-                             robot().clock_seconds() - a.started_s, outcome.detail};
+  const ResultMessage result{a.task_id,        a.round,
+                             agent().id(),     outcome.success,
+                             outcome.distance, robot().clock_seconds() - a.started_s,
+                             outcome.detail};
   const auto to = a.reply_to;
   a.result_sender = std::make_shared<GroupAction>(
       [this, result, to] {
@@ -214,8 +226,8 @@ void CourierRobotOperator::drop(const std::string& task_id, const std::string& w
   auto it = assignments_.find(task_id);
   if (it == assignments_.end()) return;
   if (it->second.result_sender) it->second.result_sender->complete();
-  agent().emit({{"event", "dropped"}, {"task", task_id}, {"round", it->second.round},
-                {"reason", why}});
+  agent().emit(
+      {{"event", "dropped"}, {"task", task_id}, {"round", it->second.round}, {"reason", why}});
   performer().cancel(task_id);
   assignments_.erase(it);
   refresh_state();
@@ -231,8 +243,10 @@ void CourierUserOperator::init(Agent& agent) {
   actions_ = std::make_unique<ActionHandler>(agent);
   auto& p = agent.processor();
   p.on<BidMessage>([this](const BidMessage& m, const Envelope& e) { on_bid(m, e); });
-  p.on<AwardAckMessage>([this](const AwardAckMessage& m, const Envelope& e) { on_award_ack(m, e); });
-  p.on<TaskStatusMessage>([this](const TaskStatusMessage& m, const Envelope& e) { on_status(m, e); });
+  p.on<AwardAckMessage>(
+      [this](const AwardAckMessage& m, const Envelope& e) { on_award_ack(m, e); });
+  p.on<TaskStatusMessage>(
+      [this](const TaskStatusMessage& m, const Envelope& e) { on_status(m, e); });
   p.on<ResultMessage>([this](const ResultMessage& m, const Envelope& e) { on_result(m, e); });
   agent.neighbors().on_change([this](const AgentState& s, bool joined) {
     if (!joined) on_neighbor_left(s);
@@ -258,8 +272,8 @@ void CourierUserOperator::start_configured_deliveries() {
     const bool enough = c.expect_robots > 0 && robots >= c.expect_robots;
     if (!enough && Clock::now() - begun < c.start_after) return;
     start_timer_->cancel();
-    agent().emit({{"event", "deliveries_start"}, {"robots", robots},
-                  {"deliveries", c.deliveries.size()}});
+    agent().emit(
+        {{"event", "deliveries_start"}, {"robots", robots}, {"deliveries", c.deliveries.size()}});
     for (std::size_t i = 0; i < c.deliveries.size(); ++i) {
       const auto [pickup, dropoff] = c.deliveries[i];
       const auto delay = c.delivery_interval * static_cast<std::int64_t>(i);
@@ -267,7 +281,9 @@ void CourierUserOperator::start_configured_deliveries() {
         try {
           request(pickup, dropoff);
         } catch (const CorosError& e) {
-          agent().emit({{"event", "delivery_rejected"}, {"pickup", pickup}, {"dropoff", dropoff},
+          agent().emit({{"event", "delivery_rejected"},
+                        {"pickup", pickup},
+                        {"dropoff", dropoff},
                         {"error", e.what()}});
         }
       };
@@ -311,7 +327,8 @@ void CourierUserOperator::start_round(DeliveryRecord& record) {
   au = Auction{};
 
   const auto& c = agent().config();
-  const AuctionMessage m{record.task_id, record.round, agent().id(), record.pickup,
+  const AuctionMessage m{record.task_id, record.round,
+                         agent().id(),   record.pickup,
                          record.dropoff, static_cast<std::int32_t>(c.bid_window.count()),
                          record.excluded};
   const int copies = std::max(1, options_.announcements);
@@ -336,8 +353,11 @@ void CourierUserOperator::start_round(DeliveryRecord& record) {
   s.dropoff = record.dropoff;
   s.updated = Clock::now();
   agent().tasks().update(s);
-  agent().emit({{"event", "auction"}, {"task", id}, {"round", round},
-                {"pickup", record.pickup.name}, {"dropoff", record.dropoff.name},
+  agent().emit({{"event", "auction"},
+                {"task", id},
+                {"round", round},
+                {"pickup", record.pickup.name},
+                {"dropoff", record.dropoff.name},
                 {"exclude", record.excluded}});
   actions_->handle(au.announcer);
 }
@@ -351,8 +371,11 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
   Auction& au = auctions_[m.task_id];
   if (!r.bids.contains(m.robot)) {
-    agent().emit({{"event", "bid_received"}, {"task", m.task_id}, {"round", m.round},
-                  {"robot", m.robot}, {"cost", m.cost}});
+    agent().emit({{"event", "bid_received"},
+                  {"task", m.task_id},
+                  {"round", m.round},
+                  {"robot", m.robot},
+                  {"cost", m.cost}});
   }
   r.bids[m.robot] = m.cost;
   au.bidders[m.robot] = e.from;
@@ -378,8 +401,8 @@ void CourierUserOperator::close_round(const std::string& task_id) {
       conclude(r);
       return;
     }
-    agent().emit({{"event", "reauction"}, {"task", task_id}, {"round", r.round + 1},
-                  {"reason", "no bids"}});
+    agent().emit(
+        {{"event", "reauction"}, {"task", task_id}, {"round", r.round + 1}, {"reason", "no bids"}});
     const int round = r.round;
     au.closer = agent().after(agent().config().bid_window, [this, task_id, round] {
       auto it = deliveries_.find(task_id);
@@ -400,8 +423,12 @@ void CourierUserOperator::close_round(const std::string& task_id) {
                                   r.cost, r.bids.size()));
   nlohmann::json bids = nlohmann::json::object();
   for (const auto& [robot, cost] : r.bids) bids[robot] = cost;
-  agent().emit({{"event", "awarded"}, {"task", task_id}, {"round", r.round}, {"robot", r.robot},
-                {"cost", r.cost}, {"bids", bids}});
+  agent().emit({{"event", "awarded"},
+                {"task", task_id},
+                {"round", r.round},
+                {"robot", r.robot},
+                {"cost", r.cost},
+                {"bids", bids}});
   const AwardMessage award{task_id, r.round, r.robot, r.pickup, r.dropoff, r.cost};
   const auto to = au.bidders.at(r.robot);
   const int round = r.round;
@@ -411,7 +438,8 @@ void CourierUserOperator::close_round(const std::string& task_id) {
         agent().send(to, award);
         return false;  // until AWARD_ACK completes it
       },
-      agent().config().retry_period, agent().config().max_retries, [this, task_id, round, winner] {
+      agent().config().retry_period, agent().config().max_retries,
+      [this, task_id, round, winner] {
         auto it = deliveries_.find(task_id);
         if (it == deliveries_.end() || it->second.round != round) return;
         reauction(it->second, winner, winner + " did not acknowledge the award");
@@ -443,8 +471,8 @@ void CourierUserOperator::on_award_ack(const AwardAckMessage& m, const Envelope&
   s.cost = r.cost;
   s.updated = Clock::now();
   agent().tasks().update(s);
-  agent().emit({{"event", "assigned"}, {"task", r.task_id}, {"round", r.round},
-                {"robot", r.robot}});
+  agent().emit(
+      {{"event", "assigned"}, {"task", r.task_id}, {"round", r.round}, {"robot", r.robot}});
 }
 
 void CourierUserOperator::on_status(const TaskStatusMessage& m, const Envelope& e) {
@@ -511,9 +539,15 @@ void CourierUserOperator::conclude(DeliveryRecord& r) {
     if (au->second.announcer) au->second.announcer->complete();
     if (au->second.awarder) au->second.awarder->complete();
   }
-  agent().emit({{"event", "delivery_finished"}, {"task", r.task_id}, {"robot", r.robot},
-                {"success", r.success}, {"distance", r.distance}, {"duration_s", r.duration_s},
-                {"rounds", r.round}, {"detail", r.detail}, {"history", r.history}});
+  agent().emit({{"event", "delivery_finished"},
+                {"task", r.task_id},
+                {"robot", r.robot},
+                {"success", r.success},
+                {"distance", r.distance},
+                {"duration_s", r.duration_s},
+                {"rounds", r.round},
+                {"detail", r.detail},
+                {"history", r.history}});
   if (finished_fn_) finished_fn_(r);
   if (configured_started_ && all_finished() &&
       deliveries_.size() >= agent().config().deliveries.size()) {
@@ -540,8 +574,8 @@ void CourierUserOperator::reauction(DeliveryRecord& r, const std::string& robot,
     r.excluded.push_back(robot);
   }
   r.history.push_back(fmt::format("round {}: {}", r.round, why));
-  agent().emit({{"event", "reauction"}, {"task", r.task_id}, {"round", r.round + 1},
-                {"reason", why}});
+  agent().emit(
+      {{"event", "reauction"}, {"task", r.task_id}, {"round", r.round + 1}, {"reason", why}});
   if (r.round >= options_.max_rounds) {
     r.finished = true;
     r.detail = fmt::format("gave up after {} rounds: {}", r.round, why);

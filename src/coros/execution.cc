@@ -27,7 +27,7 @@ void ActionHandler::step(const std::shared_ptr<GroupAction>& action, int run) {
     return;
   }
   std::weak_ptr<GroupAction> weak = action;
-  agent_.after(action->period(), [this, weak, run] {
+  action->next_run_ = agent_.after(action->period(), [this, weak, run] {
     if (auto a = weak.lock()) step(a, run + 1);
   });
 }
@@ -111,16 +111,15 @@ void TaskPerformer::perform(const std::string& key, std::shared_ptr<BaseTask> ta
 bool TaskPerformer::cancel(const std::string& key) {
   if (current_ && current_key_ == key) {
     current_->cancel();
-    current_.reset();
     current_key_.clear();
     current_done_ = nullptr;
-    agent_.post([this] {
+    agent_.post([this, keep = std::move(current_)] {  // destroyed later, off its own stack
       if (!current_) next();
     });
     return true;
   }
-  const auto it = std::find_if(queue_.begin(), queue_.end(),
-                               [&](const Entry& e) { return e.key == key; });
+  const auto it =
+      std::find_if(queue_.begin(), queue_.end(), [&](const Entry& e) { return e.key == key; });
   if (it == queue_.end()) return false;
   queue_.erase(it);
   return true;
@@ -145,9 +144,11 @@ void TaskPerformer::next() {
   current_ = e.task;
   current_key_ = e.key;
   current_done_ = e.done;
-  auto task = current_;
-  task->execute(agent_, robot_, [this, task](TaskOutcome outcome) {
-    if (current_ != task) return;  // cancelled meanwhile
+  BaseTask* const task = current_.get();  // not owned here: the task holds this callback
+  current_->execute(agent_, robot_, [this, task](TaskOutcome outcome) {
+    if (current_.get() != task) return;  // cancelled meanwhile
+    // This callback lives inside the task: keep the task until the callback has returned.
+    agent_.post([keep = current_] {});
     const std::string key = current_key_;
     Done done = std::move(current_done_);
     current_.reset();

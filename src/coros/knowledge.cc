@@ -80,8 +80,8 @@ class ConfigReader {
     if (!(v >= min && v <= max)) fail(fmt::format("'{}' = {} is outside {}..{}", key, v, min, max));
     return v;
   }
-  std::chrono::milliseconds millis(const json& o, const char* key, std::chrono::milliseconds fallback,
-                                   double min = 1) const {
+  std::chrono::milliseconds millis(const json& o, const char* key,
+                                   std::chrono::milliseconds fallback, double min = 1) const {
     return std::chrono::milliseconds(static_cast<std::int64_t>(
         number(o, key, static_cast<double>(fallback.count()), min, 3.6e6)));
   }
@@ -114,7 +114,8 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
            "faults"});
   AgentConfiguration c;
   c.id = in.string(root, "id", "");
-  if (c.id.empty() || c.id.size() > 255) in.fail("'id' must be a non-empty string of up to 255 bytes");
+  if (c.id.empty() || c.id.size() > 255)
+    in.fail("'id' must be a non-empty string of up to 255 bytes");
   c.role = in.string(root, "role", "robot");
   if (c.role != "robot" && c.role != "user" && c.role != "monitor") {
     in.fail(fmt::format("'role' is '{}', expected robot, user or monitor", c.role));
@@ -156,8 +157,9 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   c.track_file = in.string(root, "track_file", "");
   if (root.contains("user")) {
     const json& u = root["user"];
-    in.only(u, "'user'", {"deliveries", "expect_robots", "start_after_ms", "delivery_interval_ms",
-                          "exit_when_done"});
+    in.only(u, "'user'",
+            {"deliveries", "expect_robots", "start_after_ms", "delivery_interval_ms",
+             "exit_when_done"});
     if (u.contains("deliveries")) {
       const json& d = u["deliveries"];
       if (!d.is_array()) in.fail("'deliveries' must be a list of [pickup, dropoff] pairs");
@@ -253,10 +255,9 @@ bool TaskMonitor::update(const TaskState& state) {
   auto it = table_.find(state.id);
   if (it != table_.end()) {
     const TaskState& old = it->second;
-    const bool newer = state.round > old.round ||
-                       (state.round == old.round && state.stage > old.stage) ||
-                       (state.round == old.round && state.stage == old.stage &&
-                        state.distance > old.distance);
+    const bool newer =
+        state.round > old.round || (state.round == old.round && state.stage > old.stage) ||
+        (state.round == old.round && state.stage == old.stage && state.distance > old.distance);
     if (!newer) return false;
     it->second = state;
   } else {

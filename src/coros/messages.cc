@@ -14,23 +14,32 @@ constexpr std::size_t kMaxSender = 255;
 
 std::string_view to_string(MessageCode code) {
   switch (code) {
-    case MessageCode::hello: return "HELLO";
-    case MessageCode::auction: return "AUCTION";
-    case MessageCode::bid: return "BID";
-    case MessageCode::award: return "AWARD";
-    case MessageCode::award_ack: return "AWARD_ACK";
-    case MessageCode::revoke: return "REVOKE";
-    case MessageCode::task_status: return "TASK_STATUS";
-    case MessageCode::result: return "RESULT";
-    case MessageCode::result_ack: return "RESULT_ACK";
+    case MessageCode::hello:
+      return "HELLO";
+    case MessageCode::auction:
+      return "AUCTION";
+    case MessageCode::bid:
+      return "BID";
+    case MessageCode::award:
+      return "AWARD";
+    case MessageCode::award_ack:
+      return "AWARD_ACK";
+    case MessageCode::revoke:
+      return "REVOKE";
+    case MessageCode::task_status:
+      return "TASK_STATUS";
+    case MessageCode::result:
+      return "RESULT";
+    case MessageCode::result_ack:
+      return "RESULT_ACK";
   }
   return "message";
 }
 
 std::vector<std::byte> encode_header(MessageCode code, std::string_view sender) {
   if (sender.empty() || sender.size() > kMaxSender) {
-    throw CorosError(fmt::format("agent id must be 1 to {} bytes, got {}", kMaxSender,
-                                 sender.size()));
+    throw CorosError(
+        fmt::format("agent id must be 1 to {} bytes, got {}", kMaxSender, sender.size()));
   }
   std::vector<std::byte> out;
   out.reserve(64);
@@ -60,8 +69,8 @@ Datagram decode_datagram(std::span<const std::byte> bytes) {
     d.code = static_cast<MessageCode>(r.u16());
     d.sender = r.str();
     if (d.sender.empty() || d.sender.size() > kMaxSender) {
-      throw CorosError(fmt::format("sender id of {} bytes (must be 1 to {})", d.sender.size(),
-                                   kMaxSender));
+      throw CorosError(
+          fmt::format("sender id of {} bytes (must be 1 to {})", d.sender.size(), kMaxSender));
     }
     if (r.remaining() == 0) throw CorosError("datagram has no message body");
     const auto rest = r.rest();

@@ -28,8 +28,8 @@ std::string render_neighbors(const NeighborMonitor& neighbors, Clock::time_point
                                 "status", "load", "position", "heard");
   for (const auto& n : neighbors.neighbors()) {
     const auto ago = std::chrono::duration_cast<std::chrono::milliseconds>(now - n.last_heard);
-    out += fmt::format("{:<12} {:<8} {:<7} {:>4} {:>16} {:>6}ms\n", n.id, n.role, n.status,
-                       n.load, fmt::format("({:.1f}, {:.1f})", n.x, n.y), ago.count());
+    out += fmt::format("{:<12} {:<8} {:<7} {:>4} {:>16} {:>6}ms\n", n.id, n.role, n.status, n.load,
+                       fmt::format("({:.1f}, {:.1f})", n.x, n.y), ago.count());
   }
   return out;
 }

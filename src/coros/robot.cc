@@ -10,9 +10,12 @@ namespace icars::coros {
 
 std::string_view to_string(RobotStatus status) {
   switch (status) {
-    case RobotStatus::idle: return "idle";
-    case RobotStatus::moving: return "moving";
-    case RobotStatus::failed: return "failed";
+    case RobotStatus::idle:
+      return "idle";
+    case RobotStatus::moving:
+      return "moving";
+    case RobotStatus::failed:
+      return "failed";
   }
   return "unknown";
 }
@@ -54,9 +57,10 @@ sim::Point MapPlanner::locate(const std::string& name) const {
     return *p;
   }
   if (auto p = house_.locate(name)) return *p;
-  throw CorosError(fmt::format("no place '{}' on map '{}' (expected a waypoint, furniture, room "
-                               "or \"x,y\")",
-                               name, house_.name));
+  throw CorosError(
+      fmt::format("no place '{}' on map '{}' (expected a waypoint, furniture, room "
+                  "or \"x,y\")",
+                  name, house_.name));
 }
 
 std::optional<std::vector<sim::Point>> MapPlanner::path(sim::Point from, sim::Point to) const {
@@ -124,8 +128,8 @@ void SimRobot::navigate_to(sim::Point target, std::function<void(NavigationResul
   });
   if (!path) {
     done(NavigationResult{false, 0,
-                          fmt::format("no path from ({:.2f}, {:.2f}) to ({:.2f}, {:.2f})",
-                                      pose().x, pose().y, target.x, target.y)});
+                          fmt::format("no path from ({:.2f}, {:.2f}) to ({:.2f}, {:.2f})", pose().x,
+                                      pose().y, target.x, target.y)});
   }
 }
 

@@ -18,8 +18,8 @@ double parse_probability(const std::string& key, const std::string& value) {
   double v = 0;
   const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
   if (ec != std::errc{} || end != value.data() + value.size() || !(v >= 0 && v <= 1)) {
-    throw CorosError(fmt::format("fault injection: {}={} must be a probability from 0 to 1", key,
-                                 value));
+    throw CorosError(
+        fmt::format("fault injection: {}={} must be a probability from 0 to 1", key, value));
   }
   return v;
 }
@@ -47,11 +47,16 @@ FaultInjection FaultInjection::parse(const std::string& spec) {
       throw CorosError(fmt::format("fault injection: '{}' is not key=value", item));
     }
     const std::string key = item.substr(0, eq), value = item.substr(eq + 1);
-    if (key == "drop") f.drop = parse_probability(key, value);
-    else if (key == "duplicate") f.duplicate = parse_probability(key, value);
-    else if (key == "delay") f.delay = parse_probability(key, value);
-    else if (key == "max_delay_ms") f.max_delay_ms = parse_integer<int>(key, value);
-    else if (key == "seed") f.seed = parse_integer<std::uint64_t>(key, value);
+    if (key == "drop")
+      f.drop = parse_probability(key, value);
+    else if (key == "duplicate")
+      f.duplicate = parse_probability(key, value);
+    else if (key == "delay")
+      f.delay = parse_probability(key, value);
+    else if (key == "max_delay_ms")
+      f.max_delay_ms = parse_integer<int>(key, value);
+    else if (key == "seed")
+      f.seed = parse_integer<std::uint64_t>(key, value);
     else {
       throw CorosError(fmt::format(
           "fault injection: unknown key '{}' (expected drop, duplicate, delay, max_delay_ms, seed)",
@@ -64,7 +69,10 @@ FaultInjection FaultInjection::parse(const std::string& spec) {
 
 struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
   Impl(asio::io_context& io_context, const TransportOptions& options)
-      : io(io_context), unicast(io_context), group(io_context), rng(options.faults.seed),
+      : io(io_context),
+        unicast(io_context),
+        group(io_context),
+        rng(options.faults.seed),
         faults(options.faults) {}
 
   asio::io_context& io;
@@ -120,14 +128,15 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
 
   void transmit(const asio::ip::udp::endpoint& to,
                 const std::shared_ptr<std::vector<std::byte>>& bytes) {
-    unicast.async_send_to(asio::buffer(*bytes), to,
-                          [self = shared_from_this(), bytes](const std::error_code& ec, std::size_t) {
-                            if (ec && ec != asio::error::operation_aborted) {
-                              self->count(&TransportStats::send_errors);
-                            } else if (!ec) {
-                              self->count(&TransportStats::sent);
-                            }
-                          });
+    unicast.async_send_to(
+        asio::buffer(*bytes), to,
+        [self = shared_from_this(), bytes](const std::error_code& ec, std::size_t) {
+          if (ec && ec != asio::error::operation_aborted) {
+            self->count(&TransportStats::send_errors);
+          } else if (!ec) {
+            self->count(&TransportStats::sent);
+          }
+        });
   }
 
   // Applies the fault injection hook, then transmits; on the io_context.
@@ -166,8 +175,8 @@ UdpTransport::UdpTransport(asio::io_context& io, TransportOptions options)
   if (ec) throw CorosError(fmt::format("agent address '{}' is not an IPv4 address", options_.ip));
   const auto bcast = asio::ip::make_address(options_.broadcast_address, ec);
   if (ec || !bcast.is_v4()) {
-    throw CorosError(fmt::format("broadcast address '{}' is not an IPv4 address",
-                                 options_.broadcast_address));
+    throw CorosError(
+        fmt::format("broadcast address '{}' is not an IPv4 address", options_.broadcast_address));
   }
   impl_->unicast.open(asio::ip::udp::v4());
   impl_->unicast.set_option(asio::socket_base::broadcast(true));

@@ -20,17 +20,15 @@
 #include <asio/io_context.hpp>
 #include <asio/ip/udp.hpp>
 #include <asio/steady_timer.hpp>
-
 #include <chrono>
 #include <functional>
 #include <future>
 #include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "icars/coros/knowledge.h"
 #include "icars/coros/messages.h"
@@ -149,8 +147,11 @@ class Agent {
     transport_->broadcast(encode_datagram(id(), message));
   }
 
-  std::shared_ptr<Timer> after(std::chrono::milliseconds delay, std::function<void()> fn);
-  std::shared_ptr<Timer> every(std::chrono::milliseconds period, std::function<void()> fn);
+  // The timer runs only as long as the returned handle is kept.
+  [[nodiscard]] std::shared_ptr<Timer> after(std::chrono::milliseconds delay,
+                                             std::function<void()> fn);
+  [[nodiscard]] std::shared_ptr<Timer> every(std::chrono::milliseconds period,
+                                             std::function<void()> fn);
 
   // Status and load announced in HELLO; set by operators.
   void set_status(std::string status) { status_ = std::move(status); }

@@ -73,10 +73,11 @@ class CourierRobotOperator : public RobotOperator {
   void finish(const std::string& task_id, const TaskOutcome& outcome);
 
   std::shared_ptr<const MapPlanner> map_;
-  std::map<std::string, Assignment> assignments_;   // task id -> held assignment
-  std::map<std::string, int> newest_round_;         // task id -> newest round heard of
-  std::map<std::string, double> bids_;              // "task#round" -> bid sent
-  std::set<std::string> finished_;                  // "task#round" already ended here
+  std::map<std::string, Assignment> assignments_;  // task id -> held assignment
+  std::map<std::string, int> newest_round_;        // task id -> newest round heard of
+  std::map<std::string, double> bids_;             // "task#round" -> bid sent
+  std::set<std::string> finished_;                 // "task#round" already ended here
+  std::shared_ptr<Timer> status_timer_;
 };
 
 struct DeliveryRecord {

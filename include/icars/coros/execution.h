@@ -51,23 +51,30 @@ class GroupAction : public BaseAction {
  public:
   GroupAction(std::function<bool()> step, std::chrono::milliseconds period, int max_runs,
               std::function<void()> on_give_up = {})
-      : step_(std::move(step)), on_give_up_(std::move(on_give_up)), period_(period),
+      : step_(std::move(step)),
+        on_give_up_(std::move(on_give_up)),
+        period_(period),
         max_runs_(max_runs) {}
   bool execute() override { return done_ || step_(); }
   void give_up() override {
     if (on_give_up_) on_give_up_();
   }
-  void complete() { done_ = true; }
+  void complete() {
+    done_ = true;
+    if (next_run_) next_run_->cancel();
+  }
   bool done() const { return done_; }
   std::chrono::milliseconds period() const { return period_; }
   int max_runs() const { return max_runs_; }
 
  private:
+  friend class ActionHandler;
   std::function<bool()> step_;
   std::function<void()> on_give_up_;
   std::chrono::milliseconds period_;
   int max_runs_;
   bool done_ = false;
+  std::shared_ptr<Timer> next_run_;  // the pending retry; cancelled with the action
 };
 
 // Runs actions on an agent's thread (the paper's IActionHandler).

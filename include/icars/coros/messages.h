@@ -61,8 +61,8 @@ struct HelloMessage {
   std::string id;
   std::string ip;
   std::int32_t port = 0;
-  std::string role;    // robot, user, monitor
-  std::string status;  // idle, busy, failed
+  std::string role;      // robot, user, monitor
+  std::string status;    // idle, busy, failed
   double timestamp = 0;  // sender's wall clock, seconds since the Unix epoch
   double x = 0;
   double y = 0;
@@ -128,7 +128,7 @@ struct TaskStatusMessage {
   std::int32_t round = 1;
   std::string robot;
   std::string auctioneer;
-  std::string state;  // assigned, to_pickup, picked_up, to_dropoff, delivered, failed
+  std::string state;    // assigned, to_pickup, picked_up, to_dropoff, delivered, failed
   double distance = 0;  // metres driven for this task so far
   double timestamp = 0;
   static constexpr MessageCode kCode = MessageCode::task_status;
@@ -192,8 +192,8 @@ struct Datagram {
       planet::Reader r(body);
       M m = planet::decode_tagged<M>(r, to_string(M::kCode));
       if (r.remaining() != 0) {
-        throw CorosError(std::string(to_string(M::kCode)) + ": " +
-                         std::to_string(r.remaining()) + " bytes after the message");
+        throw CorosError(std::string(to_string(M::kCode)) + ": " + std::to_string(r.remaining()) +
+                         " bytes after the message");
       }
       return m;
     } catch (const planet::Error& e) {

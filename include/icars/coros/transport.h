@@ -17,7 +17,6 @@
 #include <asio/io_context.hpp>
 #include <asio/ip/udp.hpp>
 #include <asio/steady_timer.hpp>
-
 #include <cstdint>
 #include <functional>
 #include <memory>

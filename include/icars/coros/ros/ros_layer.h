@@ -15,6 +15,7 @@
 
 #include <ros/callback_queue.h>
 #include <ros/node_handle.h>
+#include <ros/serialization.h>
 #include <ros/spinner.h>
 
 #include <chrono>
@@ -26,8 +27,53 @@
 #include <string>
 #include <string_view>
 #include <utility>
+#include <vector>
 
 #include "icars/coros/messages.h"
+
+// Debian's roscpp_serialization 0.7.2 serializes std::vector fields through
+// std::allocator<T>::rebind, which C++20 removed (fixed upstream in ros/roscpp_core#124, not
+// yet released in Debian). These specializations, chosen over the library's for the
+// std::allocator every generated message uses, write the same bytes without rebind.
+#if __cplusplus > 201703L
+namespace ros::serialization::cxx20 {
+template <typename T>
+struct VectorSerializer {
+  using VecType = std::vector<T>;
+  template <typename Stream>
+  static void write(Stream& stream, const VecType& v) {
+    stream.next(static_cast<std::uint32_t>(v.size()));
+    for (const T& item : v) stream.next(item);
+  }
+  template <typename Stream>
+  static void read(Stream& stream, VecType& v) {
+    std::uint32_t length = 0;
+    stream.next(length);
+    v.resize(length);
+    for (T& item : v) stream.next(item);
+  }
+  static std::uint32_t serializedLength(const VecType& v) {
+    std::uint32_t size = 4;
+    for (const T& item : v) size += serializationLength(item);
+    return size;
+  }
+};
+}  // namespace ros::serialization::cxx20
+
+namespace ros::serialization {
+template <typename T>
+struct VectorSerializer<T, std::allocator<T>, typename boost::disable_if<mt::IsFixedSize<T>>::type>
+    : cxx20::VectorSerializer<T> {};
+template <typename T>
+struct VectorSerializer<T, std::allocator<T>, typename boost::enable_if<mt::IsSimple<T>>::type>
+    : cxx20::VectorSerializer<T> {};
+template <typename T>
+struct VectorSerializer<
+    T, std::allocator<T>,
+    typename boost::enable_if<mpl::and_<mt::IsFixedSize<T>, mpl::not_<mt::IsSimple<T>>>>::type>
+    : cxx20::VectorSerializer<T> {};
+}  // namespace ros::serialization
+#endif
 
 namespace icars::coros {
 class Agent;

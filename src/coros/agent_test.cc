@@ -1,0 +1,309 @@
+// Agents on real loopback UDP sockets in one process: discovery converges and forgets agents
+// that stop, garbage datagrams are counted and never stop an agent, the courier auction goes
+// to the lowest planned cost with a deterministic tie-break, a robot that dies mid-delivery
+// has its delivery auctioned again and completed, and with datagrams dropped, duplicated and
+// delayed every delivery is still done once.
+#include "icars/coros/agent.h"
+
+#include <gtest/gtest.h>
+
+#include <asio/ip/udp.hpp>
+#include <map>
+#include <mutex>
+
+#include "child_process.h"
+#include "icars/coros/courier.h"
+#include "icars/coros/discovery.h"
+#include "icars/coros/monitor.h"
+
+namespace icars::coros {
+namespace {
+
+using namespace std::chrono_literals;
+using planet_test::wait_until;
+
+const std::string kMap = std::string(ICARS_HOUSES_DIR) + "/paper_house.xml";
+
+std::uint16_t free_udp_port() {
+  asio::io_context io;
+  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
+  return s.local_endpoint().port();
+}
+
+// Every event of every agent, thread-safe.
+class EventLog {
+ public:
+  Agent::EventSink sink() {
+    return [this](const nlohmann::json& e) {
+      std::lock_guard lock(mutex_);
+      events_.push_back(e);
+    };
+  }
+  std::vector<nlohmann::json> find(const std::string& kind) const {
+    std::lock_guard lock(mutex_);
+    std::vector<nlohmann::json> out;
+    for (const auto& e : events_) {
+      if (e.value("event", "") == kind) out.push_back(e);
+    }
+    return out;
+  }
+  std::size_t count(const std::string& kind) const { return find(kind).size(); }
+  std::string dump() const {
+    std::lock_guard lock(mutex_);
+    std::string out;
+    for (const auto& e : events_) out += e.dump() + "\n";
+    return out;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<nlohmann::json> events_;
+};
+
+class Fleet : public ::testing::Test {
+ protected:
+  AgentConfiguration config(const std::string& id, const std::string& role) {
+    AgentConfiguration c;
+    c.id = id;
+    c.role = role;
+    c.transport.broadcast_port = port_;
+    c.transport.faults = faults_;
+    c.transport.faults.seed = seed_++;
+    c.hello_period = 50ms;
+    c.neighbor_expiry = 400ms;
+    c.bid_window = 300ms;
+    c.retry_period = 40ms;
+    c.max_retries = 50;
+    c.map = kMap;
+    return c;
+  }
+  Agent& add_agent(const AgentConfiguration& c) {
+    agents_.push_back(std::make_unique<Agent>(c));
+    agents_.back()->set_event_sink(log_.sink());
+    agents_.back()->add_operator(std::make_shared<DiscoveryOperator>());
+    return *agents_.back();
+  }
+  Agent& add_robot(const std::string& id, double x, double y, double speedup = 200) {
+    Agent& a = add_agent(config(id, "robot"));
+    SimRobotOptions o;
+    o.id = id;
+    o.start = {x, y, 0};
+    o.speedup = speedup;
+    auto robot = std::make_shared<SimRobot>(map_->house(), o);
+    robots_[id] = robot;
+    a.add_operator(std::make_shared<CourierRobotOperator>(robot, map_));
+    return a;
+  }
+  std::shared_ptr<CourierUserOperator> add_user() {
+    Agent& a = add_agent(config("user", "user"));
+    auto op = std::make_shared<CourierUserOperator>(map_);
+    a.add_operator(op);
+    user_ = &a;
+    return op;
+  }
+  void start_all() {
+    for (auto& a : agents_) a->start();
+  }
+  bool converged() {
+    for (auto& a : agents_) {
+      if (a->call([&] { return a->neighbors().size(); }) != agents_.size() - 1) return false;
+    }
+    return true;
+  }
+  double planned_cost(const std::string& robot, const std::string& pickup,
+                      const std::string& dropoff) {
+    const auto p = robots_.at(robot)->pose().position();
+    return *map_->path_cost(p, map_->locate(pickup)) +
+           *map_->path_cost(map_->locate(pickup), map_->locate(dropoff));
+  }
+  void TearDown() override {
+    for (auto& a : agents_) a->stop();
+  }
+
+  std::uint16_t port_ = free_udp_port();
+  FaultInjection faults_;
+  std::uint64_t seed_ = 1;
+  std::shared_ptr<const MapPlanner> map_ = MapPlanner::load(kMap, 0.25);
+  EventLog log_;
+  std::vector<std::unique_ptr<Agent>> agents_;
+  std::map<std::string, std::shared_ptr<SimRobot>> robots_;
+  Agent* user_ = nullptr;
+};
+
+TEST_F(Fleet, DiscoveryConvergesAndForgetsStoppedAgents) {
+  for (int i = 1; i <= 6; ++i) add_agent(config("agent" + std::to_string(i), "robot"));
+  auto& monitor = add_agent(config("monitor", "monitor"));
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto table =
+      monitor.call([&] { return render_neighbors(monitor.neighbors(), Clock::now()); });
+  EXPECT_NE(table.find("agent6"), std::string::npos) << table;
+  const auto hello = monitor.call([&] { return *monitor.neighbors().find("agent3"); });
+  EXPECT_EQ(hello.role, "robot");
+  EXPECT_EQ(hello.ip, "127.0.0.1");
+  EXPECT_EQ(hello.status, "idle");
+  EXPECT_GT(hello.timestamp, 1.6e9);
+
+  agents_[2]->stop();  // agent3
+  ASSERT_TRUE(wait_until(
+      [&] { return monitor.call([&] { return monitor.neighbors().find("agent3") == nullptr; }); },
+      20s));
+  const auto left = log_.find("neighbor_left");
+  ASSERT_FALSE(left.empty());
+  EXPECT_EQ(left[0]["neighbor"], "agent3");
+}
+
+TEST_F(Fleet, GarbageDatagramsAreCountedAndIgnored) {
+  auto& a = add_agent(config("agent1", "robot"));
+  auto& b = add_agent(config("agent2", "robot"));
+  start_all();
+  asio::io_context io;
+  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
+  s.set_option(asio::socket_base::broadcast(true));
+  const auto to = a.call([&] { return a.transport().local_endpoint(); });
+  const std::vector<std::vector<std::byte>> junk = {
+      {},
+      {std::byte{'G'}, std::byte{'E'}, std::byte{'T'}},
+      encode_header(MessageCode::hello, "intruder"),  // no body
+      [] {                                            // a HELLO code with a BID body
+        auto d = encode_datagram("intruder", BidMessage{"t", 1, "intruder", 1});
+        const auto h = encode_header(MessageCode::hello, "intruder");
+        std::copy(h.begin(), h.end(), d.begin());
+        return d;
+      }(),
+      [] {  // a HELLO naming someone else
+        return encode_datagram("intruder",
+                               HelloMessage{"agent2", "127.0.0.1", 1, "robot", "idle", 1, 0, 0, 0});
+      }(),
+  };
+  for (const auto& j : junk) {
+    s.send_to(asio::buffer(j), to);
+    s.send_to(asio::buffer(j),
+              asio::ip::udp::endpoint(asio::ip::make_address("127.255.255.255"), port_));
+  }
+  ASSERT_TRUE(wait_until(
+      [&] { return a.call([&] { return a.bad_datagrams(); }) >= 2 * junk.size(); }, 20s));
+  // Still working: the two agents discover each other.
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  EXPECT_EQ(b.call([&] { return b.neighbors().find("intruder"); }), nullptr);
+  EXPECT_GE(log_.count("bad_datagram"), 2 * junk.size());
+}
+
+TEST_F(Fleet, LowestPlannedCostWinsAndTiesGoToTheSmallerId) {
+  // robot3 is nearest to the entrance in a straight line, but through the bedroom wall; the
+  // planner sends it round by the door, so robot2 (in the living room) is cheaper.
+  add_robot("robot1", 1.0, 1.5);
+  add_robot("robot2", 3.0, 2.0);
+  add_robot("robot3", 7.0, 2.0);
+  add_robot("robot4", 3.0, 2.0);  // same spot as robot2: a tie
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const double c2 = planned_cost("robot2", "living_room_center", "bedroom_window");
+  const double c3 = planned_cost("robot3", "living_room_center", "bedroom_window");
+  const double c1 = planned_cost("robot1", "living_room_center", "bedroom_window");
+  ASSERT_LT(c2, c1);
+  ASSERT_LT(c2, c3);
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return user_->call([&] { return user->all_finished(); }); }, 60s));
+  const auto record = user_->call([&] { return user->deliveries().at(task); });
+  EXPECT_TRUE(record.success) << record.detail;
+  EXPECT_EQ(record.robot, "robot2");  // robot4 bid the same: the smaller id wins
+  ASSERT_EQ(record.bids.size(), 4u);
+  EXPECT_NEAR(record.bids.at("robot2"), c2, 1e-6);
+  EXPECT_NEAR(record.bids.at("robot3"), c3, 1e-6);
+  EXPECT_DOUBLE_EQ(record.bids.at("robot2"), record.bids.at("robot4"));
+  EXPECT_EQ(record.round, 1);
+  // The robot really drove there: it stands at the dropoff.
+  const auto end = robots_.at("robot2")->pose().position();
+  EXPECT_LT(sim::distance(end, map_->locate("bedroom_window")), 0.3);
+  EXPECT_NEAR(record.distance, c2, 0.5);
+}
+
+TEST_F(Fleet, DeadWinnerIsDetectedAndTheTaskAuctionedAgain) {
+  add_robot("robot1", 1.0, 1.0, 20);  // slow enough to be killed on the way
+  add_robot("robot2", 9.0, 1.0, 20);
+  add_robot("robot3", 8.0, 4.0, 20);
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task = user_->call([&] { return user->request("entrance", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("assigned") >= 1; }, 20s));
+  const std::string first = log_.find("assigned")[0]["robot"];
+  EXPECT_EQ(first, "robot1");
+  ASSERT_TRUE(wait_until(
+      [&] {
+        for (const auto& e : log_.find("task_stage")) {
+          if (e["agent"] == first && e["stage"] == "to_dropoff") return true;
+        }
+        return false;
+      },
+      30s));
+  agents_[0]->stop();  // robot1 dies with the courier on board
+  robots_.at("robot1")->stop();
+  ASSERT_TRUE(wait_until([&] { return user_->call([&] { return user->all_finished(); }); }, 60s));
+  const auto record = user_->call([&] { return user->deliveries().at(task); });
+  EXPECT_TRUE(record.success) << record.detail;
+  EXPECT_EQ(record.round, 2);
+  EXPECT_NE(record.robot, "robot1");
+  EXPECT_EQ(record.excluded, std::vector<std::string>{"robot1"});
+  const auto re = log_.find("reauction");
+  ASSERT_EQ(re.size(), 1u);
+  EXPECT_NE(re[0]["reason"].get<std::string>().find("robot1 stopped answering"), std::string::npos);
+}
+
+TEST_F(Fleet, LossyNetworkStillAssignsAndDeliversEachTaskOnce) {
+  faults_ = FaultInjection::parse("drop=0.25,duplicate=0.25,delay=0.3,max_delay_ms=60");
+  add_robot("robot1", 1.0, 1.0);
+  add_robot("robot2", 5.0, 4.0);
+  add_robot("robot3", 7.0, 2.0);
+  add_robot("robot4", 9.0, 1.0);
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 30s));
+  const std::vector<std::pair<std::string, std::string>> jobs = {{"entrance", "bedroom_window"},
+                                                                 {"bed_side", "kitchen_corner"},
+                                                                 {"dock", "desk"},
+                                                                 {"sofa_side", "door"},
+                                                                 {"bedroom_center", "entrance"},
+                                                                 {"kitchen_corner", "bed_side"}};
+  user_->call([&] {
+    for (const auto& [a, b] : jobs) user->request(a, b);
+    return 0;
+  });
+  const bool finished =
+      wait_until([&] { return user_->call([&] { return user->all_finished(); }); }, 90s);
+  const auto records = user_->call([&] { return user->deliveries(); });
+  for (const auto& [id, r] : records) {
+    std::string history;
+    for (const auto& h : r.history) history += "\n  " + h;
+    if (!r.finished) ADD_FAILURE() << id << " round " << r.round << " robot " << r.robot << history;
+  }
+  if (!finished) std::cerr << log_.dump();
+  ASSERT_TRUE(finished);
+  ASSERT_EQ(records.size(), jobs.size());
+  std::map<std::string, int> delivered;  // task -> robots that delivered it
+  for (const auto& e : log_.find("task_stage")) {
+    if (e["stage"] == "delivered") ++delivered[e["task"]];
+  }
+  for (const auto& [id, r] : records) {
+    EXPECT_TRUE(r.success) << id << ": " << r.detail;
+    EXPECT_EQ(delivered[id], 1) << id << " delivered " << delivered[id] << " times";
+  }
+  EXPECT_EQ(log_.count("delivery_finished"), jobs.size());
+  // The hook really was at work.
+  std::uint64_t dropped = 0, duplicated = 0, delayed = 0;
+  for (auto& a : agents_) {
+    const auto s = a->call([&] { return a->transport().stats(); });
+    dropped += s.dropped_by_hook;
+    duplicated += s.duplicated_by_hook;
+    delayed += s.delayed_by_hook;
+  }
+  EXPECT_GT(dropped, 10u);
+  EXPECT_GT(duplicated, 10u);
+  EXPECT_GT(delayed, 10u);
+}
+
+}  // namespace
+}  // namespace icars::coros
