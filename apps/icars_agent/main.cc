@@ -104,6 +104,9 @@ int run(const std::string& config_file, int monitor_ms) {
 #endif
 
   agent.start();
+  if (sim_robot && !config.track_file.empty()) {
+    write_track(config.track_file.string(), config.id, *sim_robot);  // even if killed soon
+  }
   auto last_track = std::chrono::steady_clock::now();
   auto last_table = last_track;
   while (!g_stop && !done) {

@@ -70,8 +70,10 @@ class Fleet : public ::testing::Test {
     c.transport.faults = faults_;
     c.transport.faults.seed = seed_++;
     c.hello_period = 50ms;
-    c.neighbor_expiry = 400ms;
-    c.bid_window = 300ms;
+    // Generous bounds for sanitizer builds on a loaded machine: auctions close as soon as
+    // every known robot has bid, so a long window costs nothing unless a bid is lost.
+    c.neighbor_expiry = 1500ms;
+    c.bid_window = 2000ms;
     c.retry_period = 40ms;
     c.max_retries = 50;
     c.map = kMap;

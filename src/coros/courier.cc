@@ -24,6 +24,17 @@ CourierRobotOperator::CourierRobotOperator(std::shared_ptr<Robot> robot,
                                            std::shared_ptr<const MapPlanner> map)
     : RobotOperator(std::move(robot)), map_(std::move(map)) {}
 
+CourierRobotOperator::~CourierRobotOperator() {
+  planner_.stop();
+  planner_.join();
+}
+
+void CourierRobotOperator::shutdown() {
+  planner_.stop();
+  planner_.join();  // a plan in progress finishes; its answer is posted to a stopping agent
+  RobotOperator::shutdown();
+}
+
 void CourierRobotOperator::init(Agent& agent) {
   RobotOperator::init(agent);
   auto& p = agent.processor();
@@ -48,31 +59,42 @@ void CourierRobotOperator::init(Agent& agent) {
   });
 }
 
-std::optional<double> CourierRobotOperator::cost_of(const Place& pickup,
-                                                    const Place& dropoff) const {
-  // The distance this robot would drive until the new delivery is done: what is left of its
-  // queue, in order, then to the pickup and on to the dropoff.
-  sim::Point from = robot().pose().position();
-  double total = 0;
+CourierRobotOperator::Route CourierRobotOperator::route() const {
+  Route r;
+  r.from = robot().pose().position();
   for (const auto& key : performer().keys()) {
     const auto it = assignments_.find(key);
     if (it == assignments_.end()) continue;
-    const Assignment& a = it->second;
-    if (a.stage < TaskStage::picked_up) {
-      auto c = map_->path_cost(from, at(a.pickup));
-      if (!c) return std::nullopt;
-      total += *c;
-      from = at(a.pickup);
-    }
-    auto c = map_->path_cost(from, at(a.dropoff));
-    if (!c) return std::nullopt;
-    total += *c;
-    from = at(a.dropoff);
+    r.legs.push_back(
+        {it->second.pickup, it->second.dropoff, it->second.stage >= TaskStage::picked_up});
   }
-  auto to_pickup = map_->path_cost(from, at(pickup));
-  auto delivery = map_->path_cost(at(pickup), at(dropoff));
-  if (!to_pickup || !delivery) return std::nullopt;
-  return total + *to_pickup + *delivery;
+  return r;
+}
+
+std::optional<double> CourierRobotOperator::route_cost(const MapPlanner& map, const Route& route,
+                                                       const Place& pickup, const Place& dropoff) {
+  // The distance the robot would drive until the new delivery is done: what is left of its
+  // queue, in order, then to the pickup and on to the dropoff.
+  sim::Point from = route.from;
+  double total = 0;
+  auto leg = [&](const Place& to) {
+    const auto c = map.path_cost(from, at(to));
+    if (!c) return false;
+    total += *c;
+    from = at(to);
+    return true;
+  };
+  for (const auto& l : route.legs) {
+    if (!l.picked_up && !leg(l.pickup)) return std::nullopt;
+    if (!leg(l.dropoff)) return std::nullopt;
+  }
+  if (!leg(pickup) || !leg(dropoff)) return std::nullopt;
+  return total;
+}
+
+std::optional<double> CourierRobotOperator::cost_of(const Place& pickup,
+                                                    const Place& dropoff) const {
+  return route_cost(*map_, route(), pickup, dropoff);
 }
 
 void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e) {
@@ -86,20 +108,39 @@ void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e
   if (assignments_.contains(m.task_id) || finished_.contains(round_key(m.task_id, m.round))) return;
   if (robot().status() == RobotStatus::failed) return;
   const std::string key = round_key(m.task_id, m.round);
-  auto bid = bids_.find(key);
-  if (bid == bids_.end()) {
-    const auto cost = cost_of(m.pickup, m.dropoff);
-    if (!cost) {
-      agent().emit({{"event", "no_bid"},
-                    {"task", m.task_id},
-                    {"round", m.round},
-                    {"reason", "no path to " + m.pickup.name + " or " + m.dropoff.name}});
-      return;
-    }
-    bid = bids_.emplace(key, *cost).first;
-    agent().emit({{"event", "bid"}, {"task", m.task_id}, {"round", m.round}, {"cost", *cost}});
+  if (auto bid = bids_.find(key); bid != bids_.end()) {
+    agent().send(e.from, BidMessage{m.task_id, m.round, agent().id(), bid->second});
+    return;
   }
-  agent().send(e.from, BidMessage{m.task_id, m.round, agent().id(), bid->second});
+  // Planning takes milliseconds to a good part of a second on a big map: it runs on the
+  // planner thread so HELLOs and acks keep flowing; copies of the auction that arrive
+  // meanwhile are answered together when the cost is known.
+  auto& waiting = planning_[key];
+  waiting.push_back(e.from);
+  if (waiting.size() > 1) return;
+  asio::post(planner_, [this, key, m, r = route(), map = map_] {
+    const auto cost = route_cost(*map, r, m.pickup, m.dropoff);
+    agent().post([this, key, m, cost] { bid(key, m, cost); });
+  });
+}
+
+void CourierRobotOperator::bid(const std::string& key, const AuctionMessage& m,
+                               std::optional<double> cost) {
+  const auto waiting = std::move(planning_[key]);
+  planning_.erase(key);
+  if (!cost) {
+    agent().emit({{"event", "no_bid"},
+                  {"task", m.task_id},
+                  {"round", m.round},
+                  {"reason", "no path to " + m.pickup.name + " or " + m.dropoff.name}});
+    return;
+  }
+  if (newest_round_[m.task_id] > m.round) return;  // a newer round started meanwhile
+  bids_.emplace(key, *cost);
+  agent().emit({{"event", "bid"}, {"task", m.task_id}, {"round", m.round}, {"cost", *cost}});
+  for (const auto& to : waiting) {
+    agent().send(to, BidMessage{m.task_id, m.round, agent().id(), *cost});
+  }
 }
 
 void CourierRobotOperator::on_award(const AwardMessage& m, const Envelope& e) {

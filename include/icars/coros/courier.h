@@ -24,6 +24,7 @@
 //      resending.
 #pragma once
 
+#include <asio/thread_pool.hpp>
 #include <functional>
 #include <map>
 #include <memory>
@@ -49,10 +50,27 @@ class CourierRobotOperator : public RobotOperator {
   CourierRobotOperator(std::shared_ptr<Robot> robot, std::shared_ptr<const MapPlanner> map);
   void init(Agent& agent) override;
 
-  // What this robot would bid now for a delivery; nullopt when it cannot do it.
+  ~CourierRobotOperator() override;
+  void shutdown() override;  // also stops the planner thread
+  // What this robot would bid now for a delivery; nullopt when it cannot do it. Computed on
+  // the calling thread; bids are planned on the operator's planner thread.
   std::optional<double> cost_of(const Place& pickup, const Place& dropoff) const;
 
+  // The robot's commitments: where it is, and the deliveries it still has to drive.
+  struct Route {
+    sim::Point from;
+    struct Leg {
+      Place pickup, dropoff;
+      bool picked_up = false;
+    };
+    std::vector<Leg> legs;
+  };
+  static std::optional<double> route_cost(const MapPlanner& map, const Route& route,
+                                          const Place& pickup, const Place& dropoff);
+
  private:
+  Route route() const;
+  void bid(const std::string& key, const AuctionMessage& m, std::optional<double> cost);
   struct Assignment {
     std::string task_id, auctioneer;
     int round = 1;
@@ -78,6 +96,8 @@ class CourierRobotOperator : public RobotOperator {
   std::map<std::string, double> bids_;             // "task#round" -> bid sent
   std::set<std::string> finished_;                 // "task#round" already ended here
   std::shared_ptr<Timer> status_timer_;
+  std::map<std::string, std::vector<asio::ip::udp::endpoint>> planning_;  // key -> ask again
+  asio::thread_pool planner_{1};  // last member: joined first, before anything it uses goes
 };
 
 struct DeliveryRecord {

@@ -11,6 +11,12 @@
 //
 // Lifetimes: managers hold a reference to their Node and must be destroyed before it (declare
 // the Node first). The managers are thread-safe; the Node's callbacks run on its spinner.
+//
+// C++20: Debian's ROS 1 message headers do not compile as C++20. The build regenerates the
+// standard messages this layer uses (std_msgs String, Int32 and Header, geometry_msgs
+// PoseStamped and its parts, nav_msgs Odometry) with the installed gencpp, and those copies
+// shadow /usr/include; another standard message must be added to `std_messages` in
+// src/coros/ros/CMakeLists.txt before it can be included.
 #pragma once
 
 #include <ros/callback_queue.h>
@@ -110,8 +116,9 @@ class Node {
 
   ros::NodeHandle& handle() { return handle_; }
   const std::string& ns() const { return handle_.getNamespace(); }
-  // The topic name `name` resolves to in this node ("odom" -> "/robot1/odom").
-  std::string resolve(const std::string& name) const { return handle_.resolveName(name); }
+  // The topic name `name` resolves to in this node ("odom" -> "/robot1/odom"); throws
+  // CorosError for an invalid name.
+  std::string resolve(const std::string& name) const;
   // Runs fn on the spinner thread, after the callbacks already queued; never inside post().
   void post(std::function<void()> fn);
 
