@@ -172,6 +172,33 @@ TEST_F(CorosScenario, KilledWinnerIsReplacedByAnotherRobot) {
   EXPECT_TRUE(run.summary["deliveries"][1]["success"].get<bool>()) << run.output;
 }
 
+TEST_F(CorosScenario, LossyNetworkDeliversEveryTaskOnce) {
+  // Every agent process drops, duplicates and delays a share of its datagrams (the transport's
+  // fault hook), and a robot dies on its way: each delivery is still completed, and by
+  // exactly one robot.
+  const ScenarioRun run =
+      run_coros({"--robots", "6", "--deliveries",
+                 "office_101>office_112,office_104>office_109,office_110>office_102", "--faults",
+                 "drop=0.2,duplicate=0.2,delay=0.3,max_delay_ms=80", "--kill", "robot2@3s"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const json& s = run.summary;
+  ASSERT_EQ(s["deliveries"].size(), 3U) << run.output;
+  std::map<std::string, int> delivered;  // task -> robots that reached "delivered"
+  for (const auto& r : s["robots"]) {
+    for (const auto& stage : r["stages"]) {
+      const std::string text = stage;
+      const auto space = text.find(' ');
+      if (text.substr(space + 1) == "delivered") ++delivered[text.substr(0, text.find('#'))];
+    }
+  }
+  for (const auto& d : s["deliveries"]) {
+    const std::string task = d["task"];
+    EXPECT_TRUE(d["success"].get<bool>()) << task << ": " << d.dump() << "\n" << run.output;
+    EXPECT_EQ(delivered[task], 1) << task << " delivered " << delivered[task] << " times\n"
+                                  << run.output;
+  }
+}
+
 TEST(CorosScenarioUsage, BadInputsExitWithTwoAndSayWhy) {
   struct Case {
     std::vector<std::string> args;

@@ -199,6 +199,8 @@ TEST_F(Fleet, LowestPlannedCostWinsAndTiesGoToTheSmallerId) {
   add_robot("robot3", 7.0, 2.0);
   add_robot("robot4", 3.0, 2.0);  // same spot as robot2: a tie
   auto user = add_user();
+  Agent& monitor = add_agent(config("monitor", "monitor"));
+  monitor.add_operator(std::make_shared<TaskObserverOperator>());
   start_all();
   ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
   const double c2 = planned_cost("robot2", "living_room_center", "bedroom_window");
@@ -221,6 +223,18 @@ TEST_F(Fleet, LowestPlannedCostWinsAndTiesGoToTheSmallerId) {
   const auto end = robots_.at("robot2")->pose().position();
   EXPECT_LT(sim::distance(end, map_->locate("bedroom_window")), 0.3);
   EXPECT_NEAR(record.distance, c2, 0.5);
+  // The monitor followed the task from the robot's broadcasts.
+  ASSERT_TRUE(wait_until(
+      [&] {
+        return monitor.call([&] {
+          const auto* t = monitor.tasks().find(task);
+          return t && t->stage == TaskStage::delivered;
+        });
+      },
+      20s));
+  const auto table = monitor.call([&] { return render_tasks(monitor.tasks()); });
+  EXPECT_NE(table.find("robot2"), std::string::npos) << table;
+  EXPECT_NE(table.find("delivered"), std::string::npos) << table;
 }
 
 TEST_F(Fleet, DeadWinnerIsDetectedAndTheTaskAuctionedAgain) {
