@@ -61,7 +61,8 @@ int main(int argc, char** argv) {
                   "milliseconds between the user's auctions (0: all at once)")
       ->capture_default_str();
   run->add_option("--bid-window", options.bid_window_ms,
-                  "milliseconds the user waits for bids (raise it for large fleets on slow hosts)")
+                  "milliseconds the user waits for bids; 0: 400, plus 25 per robot beyond 16, since every "
+                  "agent plans its bids on this host's cores")
       ->capture_default_str();
   run->add_option("--neighbor-expiry", options.neighbor_expiry_ms,
                   "milliseconds without a HELLO after which an agent counts as gone")

@@ -220,9 +220,9 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
   if (options.delivery_interval_ms < 0) {
     throw UsageError("--delivery-interval: expected a number of milliseconds >= 0");
   }
-  if (options.bid_window_ms < 1 || options.bid_window_ms > 600000) {
+  if (options.bid_window_ms < 0 || options.bid_window_ms > 600000) {
     throw UsageError(
-        fmt::format("--bid-window {}: expected 1 to 600000 ms", options.bid_window_ms));
+        fmt::format("--bid-window {}: expected 0 (automatic) to 600000 ms", options.bid_window_ms));
   }
   if (options.neighbor_expiry_ms <= 200 || options.neighbor_expiry_ms > 3600000) {
     throw UsageError(
@@ -322,7 +322,9 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
     c["broadcast"] = {{"address", "127.255.255.255"}, {"port", broadcast_port}};
     c["hello_period_ms"] = 200;
     c["neighbor_expiry_ms"] = options.neighbor_expiry_ms;
-    c["bid_window_ms"] = options.bid_window_ms;
+    c["bid_window_ms"] = options.bid_window_ms > 0
+                             ? options.bid_window_ms
+                             : 400 + 25 * std::max(0, options.robots - 16);
     c["retry_period_ms"] = 100;
     c["max_retries"] = 20;
     c["map"] = plan.map.string();

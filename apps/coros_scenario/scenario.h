@@ -66,7 +66,9 @@ struct ScenarioOptions {
   std::filesystem::path keep_dir;   // "" for a temporary directory
   double timeout_s = 120;
   int delivery_interval_ms = 0;
-  int bid_window_ms = 400;           // how long the user waits for bids
+  // How long the user waits for bids; 0: 400 ms, plus 25 ms per robot beyond 16 (every agent
+  // process plans its bids on this one host's cores).
+  int bid_window_ms = 0;
   int neighbor_expiry_ms = 1000;     // no HELLO for this long: the agent is gone
   std::uint16_t broadcast_port = 0;  // 0: a free one
   bool verbose = false;              // echo every agent event

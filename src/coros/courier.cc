@@ -112,22 +112,34 @@ void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e
     agent().send(e.from, BidMessage{m.task_id, m.round, agent().id(), bid->second});
     return;
   }
+  // A task auctioned again costs what it cost in the last round, as long as this robot's
+  // commitments have not changed and it has not moved on since.
+  auto& waiting = planning_[m.task_id];
+  if (std::find(waiting.begin(), waiting.end(), std::pair{e.from, m.round}) == waiting.end()) {
+    waiting.emplace_back(e.from, m.round);
+  }
+  if (auto c = costs_.find(m.task_id); c != costs_.end() &&
+                                       c->second.route_version == route_version_ &&
+                                       Clock::now() - c->second.at < std::chrono::seconds(2)) {
+    bid(m, c->second.cost);
+    return;
+  }
+  if (waiting.size() > 1) return;  // being planned: answered with the others
   // Planning takes milliseconds to a good part of a second on a big map: it runs on the
-  // planner thread so HELLOs and acks keep flowing; copies of the auction that arrive
-  // meanwhile are answered together when the cost is known.
-  auto& waiting = planning_[key];
-  waiting.push_back(e.from);
-  if (waiting.size() > 1) return;
-  asio::post(planner_, [this, key, m, r = route(), map = map_] {
+  // planner thread so HELLOs and acks keep flowing; copies of the auction (of any round) that
+  // arrive meanwhile are answered together when the cost is known.
+  asio::post(planner_, [this, m, r = route(), map = map_, version = route_version_] {
     const auto cost = route_cost(*map, r, m.pickup, m.dropoff);
-    agent().post([this, key, m, cost] { bid(key, m, cost); });
+    agent().post([this, m, cost, version] {
+      if (version == route_version_) costs_[m.task_id] = {version, cost, Clock::now()};
+      bid(m, cost);
+    });
   });
 }
 
-void CourierRobotOperator::bid(const std::string& key, const AuctionMessage& m,
-                               std::optional<double> cost) {
-  const auto waiting = std::move(planning_[key]);
-  planning_.erase(key);
+void CourierRobotOperator::bid(const AuctionMessage& m, std::optional<double> cost) {
+  const auto waiting = std::move(planning_[m.task_id]);
+  planning_.erase(m.task_id);
   if (!cost) {
     agent().emit({{"event", "no_bid"},
                   {"task", m.task_id},
@@ -135,11 +147,13 @@ void CourierRobotOperator::bid(const std::string& key, const AuctionMessage& m,
                   {"reason", "no path to " + m.pickup.name + " or " + m.dropoff.name}});
     return;
   }
-  if (newest_round_[m.task_id] > m.round) return;  // a newer round started meanwhile
-  bids_.emplace(key, *cost);
-  agent().emit({{"event", "bid"}, {"task", m.task_id}, {"round", m.round}, {"cost", *cost}});
-  for (const auto& to : waiting) {
-    agent().send(to, BidMessage{m.task_id, m.round, agent().id(), *cost});
+  // Every auction copy that waited gets the bid of its own round; the auctioneer also counts
+  // a bid of an earlier round while the current one is open.
+  for (const auto& [to, round] : waiting) {
+    if (bids_.emplace(round_key(m.task_id, round), *cost).second) {
+      agent().emit({{"event", "bid"}, {"task", m.task_id}, {"round", round}, {"cost", *cost}});
+    }
+    agent().send(to, BidMessage{m.task_id, round, agent().id(), *cost});
   }
 }
 
@@ -176,6 +190,7 @@ void CourierRobotOperator::on_award(const AwardMessage& m, const Envelope& e) {
   a.started_s = robot().clock_seconds();
   a.start_odometer = robot().odometer();
   assignments_.emplace(m.task_id, a);
+  ++route_version_;
   ack(true, "");
   set_stage(assignments_.at(m.task_id), TaskStage::assigned);
 
@@ -227,6 +242,7 @@ void CourierRobotOperator::finish(const std::string& task_id, const TaskOutcome&
   Assignment& a = it->second;
   a.distance = outcome.distance;
   set_stage(a, outcome.success ? TaskStage::delivered : TaskStage::failed);
+  ++route_version_;
   finished_.insert(round_key(a.task_id, a.round));
   const ResultMessage result{a.task_id,        a.round,
                              agent().id(),     outcome.success,
@@ -271,6 +287,7 @@ void CourierRobotOperator::drop(const std::string& task_id, const std::string& w
       {{"event", "dropped"}, {"task", task_id}, {"round", it->second.round}, {"reason", why}});
   performer().cancel(task_id);
   assignments_.erase(it);
+  ++route_version_;
   refresh_state();
 }
 
@@ -407,14 +424,17 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   auto it = deliveries_.find(m.task_id);
   if (it == deliveries_.end()) return;
   DeliveryRecord& r = it->second;
-  if (r.finished || m.round != r.round || !r.robot.empty() || m.robot != e.sender) return;
+  // A bid of an earlier round of this task still counts while the current round is open: a
+  // robot's cost does not depend on the round, and a slow planner's bid is not wasted.
+  if (r.finished || m.round > r.round || !r.robot.empty() || m.robot != e.sender) return;
   if (std::find(r.excluded.begin(), r.excluded.end(), m.robot) != r.excluded.end()) return;
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
   Auction& au = auctions_[m.task_id];
   if (!r.bids.contains(m.robot)) {
     agent().emit({{"event", "bid_received"},
                   {"task", m.task_id},
-                  {"round", m.round},
+                  {"round", r.round},
+                  {"bid_round", m.round},
                   {"robot", m.robot},
                   {"cost", m.cost}});
   }

@@ -70,7 +70,7 @@ class CourierRobotOperator : public RobotOperator {
 
  private:
   Route route() const;
-  void bid(const std::string& key, const AuctionMessage& m, std::optional<double> cost);
+  void bid(const AuctionMessage& m, std::optional<double> cost);  // to all who asked
   struct Assignment {
     std::string task_id, auctioneer;
     int round = 1;
@@ -96,7 +96,15 @@ class CourierRobotOperator : public RobotOperator {
   std::map<std::string, double> bids_;             // "task#round" -> bid sent
   std::set<std::string> finished_;                 // "task#round" already ended here
   std::shared_ptr<Timer> status_timer_;
-  std::map<std::string, std::vector<asio::ip::udp::endpoint>> planning_;  // key -> ask again
+  struct Cost {
+    std::uint64_t route_version = 0;
+    std::optional<double> cost;
+    Clock::time_point at{};
+  };
+  std::map<std::string, Cost> costs_;  // task id -> the last cost planned for it
+  std::uint64_t route_version_ = 0;    // changes whenever the robot's commitments change
+  // task id -> who asked (endpoint, round) while its cost was being planned
+  std::map<std::string, std::vector<std::pair<asio::ip::udp::endpoint, int>>> planning_;
   asio::thread_pool planner_{1};  // last member: joined first, before anything it uses goes
 };
 
