@@ -7,13 +7,15 @@
 // For each fleet size N (N robots and one user) and each run:
 //   discovery  time from starting all N+1 agents until every agent has the N others in its
 //              neighbour table (the first HELLO goes out at start, then one every --hello-ms);
+//   join       time from starting one more robot in the running fleet until it knows all
+//              N+1 agents and all of them know it (bounded by one HELLO period);
 //   auction    time from the user's request until the winner's AWARD_ACK (announcement, N
 //              planned bids, early close once every known robot has bid, award, ack), for
 //              three deliveries one after another.
 // Prints the median, minimum and maximum over the runs (the machine is noisy; quote medians).
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <asio/ip/udp.hpp>
 #include <condition_variable>
@@ -49,6 +51,7 @@ bool wait_for(F condition, std::chrono::seconds bound) {
 
 struct RunResult {
   double discovery_ms = 0;
+  double join_ms = 0;
   std::vector<double> auction_ms;
 };
 
@@ -129,10 +132,26 @@ RunResult run_once(int robots, std::chrono::milliseconds hello,
     const std::string task = user_agent.call([&] { return user->request(a, b); });
     std::unique_lock lock(mutex);
     if (!cv.wait_for(lock, 30s, [&] { return assigned.contains(task); })) {
-      throw std::runtime_error(fmt::format("{} agents: auction of {} not done in 30 s", robots, task));
+      throw std::runtime_error(
+          fmt::format("{} agents: auction of {} not done in 30 s", robots, task));
     }
     result.auction_ms.push_back(Ms(assigned[task] - t0).count());
   }
+  // A robot joining the running fleet: until it knows everyone and everyone knows it.
+  agents.push_back(std::make_unique<Agent>(config("robot_late", "robot")));
+  agents.back()->add_operator(std::make_shared<DiscoveryOperator>());
+  const auto join_start = std::chrono::steady_clock::now();
+  agents.back()->start();
+  if (!wait_for(
+          [&] {
+            return std::all_of(agents.begin(), agents.end(), [&](auto& a) {
+              return a->call([&] { return a->neighbors().size(); }) == agents.size() - 1;
+            });
+          },
+          60s)) {
+    throw std::runtime_error(fmt::format("{} agents: a late robot was not known in 60 s", robots));
+  }
+  result.join_ms = Ms(std::chrono::steady_clock::now() - join_start).count();
   for (auto& a : agents) a->stop();
   return result;
 }
@@ -164,17 +183,21 @@ int main(int argc, char** argv) {
     const auto map = MapPlanner::load(map_file, 0.25);
     fmt::print("map {}, HELLO every {} ms, {} runs per size; times in ms (median [min, max])\n",
                map->house().name, hello_ms, runs);
-    fmt::print("{:>7} {:>28} {:>28}\n", "robots", "discovery convergence", "auction completion");
+    fmt::print("{:>7} {:>28} {:>28} {:>28}\n", "robots", "discovery convergence",
+               "late joiner known", "auction completion");
     for (int n : sizes) {
-      std::vector<double> discovery, auction;
+      std::vector<double> discovery, join, auction;
       for (int r = 0; r < runs; ++r) {
         const auto result = run_once(n, std::chrono::milliseconds(hello_ms), map);
         discovery.push_back(result.discovery_ms);
+        join.push_back(result.join_ms);
         auction.insert(auction.end(), result.auction_ms.begin(), result.auction_ms.end());
       }
-      const auto d = stats(discovery), a = stats(auction);
-      fmt::print("{:>7} {:>10.1f} [{:>6.1f}, {:>6.1f}] {:>10.1f} [{:>6.1f}, {:>6.1f}]\n", n,
-                 d.median, d.min, d.max, a.median, a.min, a.max);
+      const auto d = stats(discovery), j = stats(join), a = stats(auction);
+      fmt::print(
+          "{:>7} {:>10.1f} [{:>6.1f}, {:>6.1f}] {:>10.1f} [{:>6.1f}, {:>6.1f}] {:>10.1f} "
+          "[{:>6.1f}, {:>6.1f}]\n",
+          n, d.median, d.min, d.max, j.median, j.min, j.max, a.median, a.min, a.max);
     }
   } catch (const std::exception& e) {
     fmt::print(stderr, "coros_scale: {}\n", e.what());

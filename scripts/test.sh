@@ -15,4 +15,5 @@ ctest --preset asan -j "$jobs"
 cmake --preset release -DICARS_BUILD_TESTS=OFF >/dev/null
 cmake --build build/release -j "$jobs"
 build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
+build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null
 echo "test.sh: all tests passed"
