@@ -100,7 +100,7 @@ void Agent::on_datagram(const Datagram& datagram, const asio::ip::udp::endpoint&
   if (!processor_.handles(datagram.code)) return;  // another application's message: not ours
   try {
     processor_.process(datagram, Envelope{datagram.sender, from});
-  } catch (const CorosError& e) {
+  } catch (const std::exception& e) {  // a handler's bug must not take the agent down
     ++bad_datagrams_;
     emit({{"event", "bad_datagram"},
           {"from", fmt::format("{}:{}", from.address().to_string(), from.port())},

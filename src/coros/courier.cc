@@ -199,7 +199,10 @@ void CourierRobotOperator::on_award(const AwardMessage& m, const Envelope& e) {
   task->on_step([this, task_id](std::size_t step) {
     auto it = assignments_.find(task_id);
     if (it == assignments_.end()) return;
-    if (step == 0) set_stage(it->second, TaskStage::to_pickup);
+    if (step == 0) {
+      it->second.start_odometer = robot().odometer();  // it may have waited in the queue
+      set_stage(it->second, TaskStage::to_pickup);
+    }
     if (step == 1) {
       set_stage(it->second, TaskStage::picked_up);
       set_stage(it->second, TaskStage::to_dropoff);
@@ -256,8 +259,9 @@ void CourierRobotOperator::finish(const std::string& task_id, const TaskOutcome&
       },
       agent().config().retry_period, agent().config().max_retries,
       [this, task_id] {
+        // Keep the assignment: its "delivered" state is still broadcast every few HELLO
+        // periods, and the auctioneer takes that as the result.
         agent().emit({{"event", "result_unacknowledged"}, {"task", task_id}});
-        assignments_.erase(task_id);
       });
   actions().handle(a.result_sender);
   refresh_state();
@@ -332,6 +336,7 @@ void CourierUserOperator::start_configured_deliveries() {
     start_timer_->cancel();
     agent().emit(
         {{"event", "deliveries_start"}, {"robots", robots}, {"deliveries", c.deliveries.size()}});
+    configured_started_ = true;
     for (std::size_t i = 0; i < c.deliveries.size(); ++i) {
       const auto [pickup, dropoff] = c.deliveries[i];
       const auto delay = c.delivery_interval * static_cast<std::int64_t>(i);
@@ -343,6 +348,8 @@ void CourierUserOperator::start_configured_deliveries() {
                         {"pickup", pickup},
                         {"dropoff", dropoff},
                         {"error", e.what()}});
+          ++rejected_;
+          check_all_done();
         }
       };
       if (delay.count() == 0) {
@@ -351,7 +358,7 @@ void CourierUserOperator::start_configured_deliveries() {
         delivery_timers_.push_back(agent().after(delay, go));
       }
     }
-    configured_started_ = true;
+    check_all_done();  // when every configured delivery was rejected
   });
 }
 
@@ -365,6 +372,21 @@ std::string CourierUserOperator::request(const std::string& pickup, const std::s
   const std::string id = record.task_id;
   start_round(deliveries_.emplace(id, std::move(record)).first->second);
   return id;
+}
+
+TaskState CourierUserOperator::state_of(const DeliveryRecord& r, TaskStage stage) const {
+  TaskState s;
+  s.id = r.task_id;
+  s.auctioneer = agent().id();
+  s.robot = r.robot;
+  s.round = r.round;
+  s.stage = stage;
+  s.pickup = r.pickup;
+  s.dropoff = r.dropoff;
+  s.cost = r.cost;
+  s.distance = r.distance;
+  s.updated = Clock::now();
+  return s;
 }
 
 bool CourierUserOperator::all_finished() const {
@@ -402,15 +424,7 @@ void CourierUserOperator::start_round(DeliveryRecord& record) {
     auto it = deliveries_.find(id);
     if (it != deliveries_.end() && it->second.round == round) close_round(id);
   });
-  TaskState s;
-  s.id = id;
-  s.auctioneer = agent().id();
-  s.round = round;
-  s.stage = TaskStage::announced;
-  s.pickup = record.pickup;
-  s.dropoff = record.dropoff;
-  s.updated = Clock::now();
-  agent().tasks().update(s);
+  agent().tasks().update(state_of(record, TaskStage::announced));
   agent().emit({{"event", "auction"},
                 {"task", id},
                 {"round", round},
@@ -521,32 +535,13 @@ void CourierUserOperator::on_award_ack(const AwardAckMessage& m, const Envelope&
     return;
   }
   r.assigned_at = Clock::now();
-  TaskState s;
-  s.id = r.task_id;
-  s.auctioneer = agent().id();
-  s.robot = r.robot;
-  s.round = r.round;
-  s.stage = TaskStage::assigned;
-  s.pickup = r.pickup;
-  s.dropoff = r.dropoff;
-  s.cost = r.cost;
-  s.updated = Clock::now();
-  agent().tasks().update(s);
+  agent().tasks().update(state_of(r, TaskStage::assigned));
   agent().emit(
       {{"event", "assigned"}, {"task", r.task_id}, {"round", r.round}, {"robot", r.robot}});
 }
 
 void CourierUserOperator::on_status(const TaskStatusMessage& m, const Envelope& e) {
-  const auto stage = parse_task_stage(m.state);
-  if (!stage) throw CorosError("TASK_STATUS with unknown state '" + m.state + "' from " + e.sender);
-  TaskState s;
-  s.id = m.task_id;
-  s.auctioneer = m.auctioneer;
-  s.robot = m.robot;
-  s.round = m.round;
-  s.stage = *stage;
-  s.distance = m.distance;
-  s.updated = Clock::now();
+  TaskState s = TaskState::from_status(m, e.sender);
   if (auto it = deliveries_.find(m.task_id); it != deliveries_.end()) {
     s.pickup = it->second.pickup;
     s.dropoff = it->second.dropoff;
@@ -556,6 +551,15 @@ void CourierUserOperator::on_status(const TaskStatusMessage& m, const Envelope& 
     Auction& au = auctions_[m.task_id];
     if (m.round == r.round && m.robot == r.robot && au.awarder && !au.awarder->done()) {
       on_award_ack(AwardAckMessage{m.task_id, m.round, m.robot, true, ""}, e);
+    }
+    // A "delivered" state from the current round's robot stands for a RESULT that was lost
+    // every time it was sent.
+    if (s.stage == TaskStage::delivered && m.round == r.round && m.robot == r.robot &&
+        !r.finished) {
+      on_result(ResultMessage{m.task_id, m.round, m.robot, true, m.distance, 0,
+                              "result taken from the robot's task state"},
+                e);
+      return;
     }
   }
   agent().tasks().update(s);
@@ -577,18 +581,7 @@ void CourierUserOperator::on_result(const ResultMessage& m, const Envelope& e) {
   r.detail = m.detail;
   r.history.push_back(fmt::format("round {}: {} delivered, {:.2f} m in {:.1f} s", r.round, m.robot,
                                   m.distance, m.duration_s));
-  TaskState s;
-  s.id = r.task_id;
-  s.auctioneer = agent().id();
-  s.robot = r.robot;
-  s.round = r.round;
-  s.stage = TaskStage::delivered;
-  s.pickup = r.pickup;
-  s.dropoff = r.dropoff;
-  s.cost = r.cost;
-  s.distance = m.distance;
-  s.updated = Clock::now();
-  agent().tasks().update(s);
+  agent().tasks().update(state_of(r, TaskStage::delivered));
   conclude(r);
 }
 
@@ -610,12 +603,22 @@ void CourierUserOperator::conclude(DeliveryRecord& r) {
                 {"detail", r.detail},
                 {"history", r.history}});
   if (finished_fn_) finished_fn_(r);
-  if (configured_started_ && all_finished() &&
-      deliveries_.size() >= agent().config().deliveries.size()) {
-    int ok = 0;
-    for (const auto& [id, d] : deliveries_) ok += d.success ? 1 : 0;
-    agent().emit({{"event", "all_done"}, {"deliveries", deliveries_.size()}, {"succeeded", ok}});
+  check_all_done();
+}
+
+void CourierUserOperator::check_all_done() {
+  const auto& wanted = agent().config().deliveries;
+  if (all_done_sent_ || !configured_started_ || !all_finished() ||
+      deliveries_.size() + rejected_ < wanted.size()) {
+    return;
   }
+  all_done_sent_ = true;
+  int ok = 0;
+  for (const auto& [id, d] : deliveries_) ok += d.success ? 1 : 0;
+  agent().emit({{"event", "all_done"},
+                {"deliveries", deliveries_.size() + rejected_},
+                {"succeeded", ok},
+                {"rejected", rejected_}});
 }
 
 void CourierUserOperator::on_neighbor_left(const AgentState& gone) {

@@ -42,6 +42,20 @@ std::optional<TaskStage> parse_task_stage(std::string_view text) {
   return std::nullopt;
 }
 
+TaskState TaskState::from_status(const TaskStatusMessage& m, const std::string& sender) {
+  const auto stage = parse_task_stage(m.state);
+  if (!stage) throw CorosError("TASK_STATUS with unknown state '" + m.state + "' from " + sender);
+  TaskState s;
+  s.id = m.task_id;
+  s.auctioneer = m.auctioneer;
+  s.robot = m.robot;
+  s.round = m.round;
+  s.stage = *stage;
+  s.distance = m.distance;
+  s.updated = Clock::now();
+  return s;
+}
+
 // --- AgentConfiguration --------------------------------------------------------------------
 
 namespace {
@@ -183,9 +197,7 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
     }
   }
   if (c.role == "robot" && c.map.empty()) in.fail("a robot needs a 'map'");
-  if (c.role == "user" && !c.deliveries.empty() && c.map.empty()) {
-    in.fail("a user with deliveries needs a 'map'");
-  }
+  if (c.role == "user" && c.map.empty()) in.fail("a user needs a 'map' to place deliveries");
   return c;
 }
 

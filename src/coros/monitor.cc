@@ -7,19 +7,7 @@ namespace icars::coros {
 void TaskObserverOperator::init(Agent& agent) {
   SimpleOperator::init(agent);
   agent.processor().on<TaskStatusMessage>([this](const TaskStatusMessage& m, const Envelope& e) {
-    const auto stage = parse_task_stage(m.state);
-    if (!stage) {
-      throw CorosError("TASK_STATUS with unknown state '" + m.state + "' from " + e.sender);
-    }
-    TaskState s;
-    s.id = m.task_id;
-    s.auctioneer = m.auctioneer;
-    s.robot = m.robot;
-    s.round = m.round;
-    s.stage = *stage;
-    s.distance = m.distance;
-    s.updated = Clock::now();
-    this->agent().tasks().update(s);
+    this->agent().tasks().update(TaskState::from_status(m, e.sender));
   });
 }
 

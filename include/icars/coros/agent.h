@@ -13,8 +13,10 @@
 // fire, operators' handlers run. Operators therefore need no locks. From other threads use
 // post() or call().
 //
-// A datagram that cannot be decoded, or whose code no operator handles, is counted and
-// reported through the event sink as {"event":"bad_datagram",...}; it never stops the agent.
+// A datagram that cannot be decoded, or that a handler rejects (a CorosError or any other
+// exception), is counted and reported through the event sink as {"event":"bad_datagram",...};
+// it never stops the agent. A well-formed message whose code no operator of this agent
+// handles (another application sharing the fleet's port) is ignored.
 #pragma once
 
 #include <asio/io_context.hpp>
@@ -68,7 +70,7 @@ class MessageProcessor {
 };
 
 // An agent's application logic (the paper's AgentOperator). SimpleOperator is the base for
-// agents without a robot; RobotOperator (courier.h) adds one.
+// agents without a robot; RobotOperator (execution.h) adds one.
 class Operator {
  public:
   virtual ~Operator() = default;

@@ -122,7 +122,7 @@ struct DeliveryRecord {
   double duration_s = 0;
   std::string detail;
   Clock::time_point requested{}, auction_started{}, assigned_at{}, finished_at{};
-  std::vector<std::string> history;  // "round 1: robot3 won (12.4 m)", ...
+  std::vector<std::string> history;  // "round 1: robot3 won at 12.40 m of 5 bids", ...
 };
 
 class CourierUserOperator : public SimpleOperator {
@@ -160,6 +160,8 @@ class CourierUserOperator : public SimpleOperator {
   void reauction(DeliveryRecord& record, const std::string& robot, const std::string& why);
   void start_configured_deliveries();
   void conclude(DeliveryRecord& record);  // finished: emit, notify, maybe all_done
+  void check_all_done();  // every configured delivery finished or rejected: all_done, once
+  TaskState state_of(const DeliveryRecord& record, TaskStage stage) const;
 
   std::shared_ptr<const MapPlanner> map_;
   Options options_;
@@ -171,6 +173,8 @@ class CourierUserOperator : public SimpleOperator {
   std::vector<std::shared_ptr<Timer>> delivery_timers_;
   int next_task_ = 1;
   bool configured_started_ = false;
+  bool all_done_sent_ = false;
+  std::size_t rejected_ = 0;  // configured deliveries naming unknown places
 };
 
 }  // namespace icars::coros

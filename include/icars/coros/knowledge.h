@@ -49,6 +49,8 @@ struct TaskState {
   double cost = 0;      // the winning bid
   double distance = 0;  // metres driven so far
   Clock::time_point updated{};
+  // A robot's TASK_STATUS as a task state; throws CorosError for an unknown stage.
+  static TaskState from_status(const TaskStatusMessage& status, const std::string& sender);
 };
 
 struct AgentConfiguration {

@@ -180,7 +180,7 @@ concept Message = planet::Encodable<M> && requires {
   { M::kCode } -> std::convertible_to<MessageCode>;
 };
 
-// A datagram taken apart: the header, and the body still encoded (decoded by body<M>()).
+// A datagram taken apart: the header, and the body still encoded (decoded by body_as<M>()).
 struct Datagram {
   MessageCode code{};
   std::string sender;
