@@ -1,5 +1,7 @@
 #include "icars/coros/ros/ros_layer.h"
 
+#include <fmt/format.h>
+
 #include <ros/callback_queue_interface.h>
 #include <ros/init.h>
 #include <ros/master.h>
@@ -195,11 +197,12 @@ std::uint32_t SubscribersManager::publisher_count(const std::string& key) const 
 // --- KnowledgePublisher ---
 
 std::string KnowledgePublisher::neighborhood_topic(const std::string& agent_id) {
-  return "/" + ros_name(agent_id) + "/neighborhood_list";
+  // fmt, not "/" + std::string: GCC 12's -Wrestrict misfires on that at -O3.
+  return fmt::format("/{}/neighborhood_list", ros_name(agent_id));
 }
 
 std::string KnowledgePublisher::task_states_topic(const std::string& agent_id) {
-  return "/" + ros_name(agent_id) + "/task_states";
+  return fmt::format("/{}/task_states", ros_name(agent_id));
 }
 
 struct KnowledgePublisher::Impl {
