@@ -122,20 +122,21 @@ void Agent::schedule(const std::shared_ptr<Timer>& timer, std::chrono::milliseco
       });
 }
 
-std::shared_ptr<Timer> Agent::after(std::chrono::milliseconds delay, std::function<void()> fn) {
+std::shared_ptr<Timer> Agent::start_timer(std::chrono::milliseconds delay, std::function<void()> fn,
+                                          bool repeat) {
   if (timers_.size() > 64) std::erase_if(timers_, [](const auto& w) { return w.expired(); });
   auto timer = std::shared_ptr<Timer>(new Timer(io_));
   timers_.push_back(timer);
-  schedule(timer, delay, std::move(fn), false);
+  schedule(timer, delay, std::move(fn), repeat);
   return timer;
 }
 
+std::shared_ptr<Timer> Agent::after(std::chrono::milliseconds delay, std::function<void()> fn) {
+  return start_timer(delay, std::move(fn), false);
+}
+
 std::shared_ptr<Timer> Agent::every(std::chrono::milliseconds period, std::function<void()> fn) {
-  if (timers_.size() > 64) std::erase_if(timers_, [](const auto& w) { return w.expired(); });
-  auto timer = std::shared_ptr<Timer>(new Timer(io_));
-  timers_.push_back(timer);
-  schedule(timer, period, std::move(fn), true);
-  return timer;
+  return start_timer(period, std::move(fn), true);
 }
 
 }  // namespace icars::coros

@@ -7,9 +7,7 @@ namespace icars::coros {
 // --- ActionHandler -------------------------------------------------------------------------
 
 void ActionHandler::handle(const std::shared_ptr<BaseAction>& action) {
-  std::erase_if(running_, [](const auto& w) { return w.expired(); });
   if (auto group = std::dynamic_pointer_cast<GroupAction>(action)) {
-    running_.push_back(group);
     step(group, 0);
     return;
   }
@@ -30,16 +28,6 @@ void ActionHandler::step(const std::shared_ptr<GroupAction>& action, int run) {
   action->next_run_ = agent_.after(action->period(), [this, weak, run] {
     if (auto a = weak.lock()) step(a, run + 1);
   });
-}
-
-std::size_t ActionHandler::running() const {
-  std::size_t n = 0;
-  for (const auto& w : running_) {
-    if (auto a = w.lock()) {
-      if (auto g = std::dynamic_pointer_cast<GroupAction>(a); g && !g->done()) ++n;
-    }
-  }
-  return n;
 }
 
 // --- MoveToTask ----------------------------------------------------------------------------

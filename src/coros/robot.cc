@@ -90,11 +90,10 @@ SimRobot::SimRobot(sim::House map, SimRobotOptions options)
   world_options.report_every = sim::SimTime{200};
   world_ = std::make_unique<sim::World>(alone_on(std::move(map), options_), clock_, world_options);
   track_.emplace_back(clock_.now(), last_);
-  listener_ = world_->on_robot_pose([this](const std::string&, const sim::Pose& pose, bool moving) {
+  listener_ = world_->on_robot_pose([this](const std::string&, const sim::Pose& pose, bool) {
     std::lock_guard lock(mutex_);
     odometer_ += sim::distance(last_, pose.position());
     last_ = pose.position();
-    moving_ = moving;
     track_.emplace_back(clock_.now(), last_);
   });
   driver_ = std::make_unique<sim::RealTimeDriver>(clock_, options_.speedup);

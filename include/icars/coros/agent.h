@@ -172,6 +172,8 @@ class Agent {
 
  private:
   void on_datagram(const Datagram& datagram, const asio::ip::udp::endpoint& from);
+  std::shared_ptr<Timer> start_timer(std::chrono::milliseconds delay, std::function<void()> fn,
+                                     bool repeat);
   void schedule(const std::shared_ptr<Timer>& timer, std::chrono::milliseconds delay,
                 std::function<void()> fn, bool repeat);
 

@@ -82,12 +82,10 @@ class ActionHandler {
  public:
   explicit ActionHandler(Agent& agent) : agent_(agent) {}
   void handle(const std::shared_ptr<BaseAction>& action);
-  std::size_t running() const;
 
  private:
   void step(const std::shared_ptr<GroupAction>& action, int run);
   Agent& agent_;
-  std::vector<std::weak_ptr<BaseAction>> running_;
 };
 
 struct TaskOutcome {

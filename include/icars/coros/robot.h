@@ -103,7 +103,6 @@ class SimRobot : public Robot {
   mutable std::mutex mutex_;
   double odometer_ = 0;
   sim::Point last_{};
-  bool moving_ = false;
   std::vector<std::pair<sim::SimTime, sim::Point>> track_;
   std::uint64_t listener_ = 0;
 };
