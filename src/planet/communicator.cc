@@ -65,6 +65,13 @@ Communicator::Communicator(CommunicatorOptions options)
 
 Communicator::~Communicator() {
   manager_->shutdown();
+  {
+    // Large messages still being handled finish first (their replies fail: the links are down).
+    std::unique_lock lock(bulk_mutex_);
+    auto bulk = std::move(bulk_);
+    lock.unlock();
+    if (bulk) bulk->join();
+  }
   asio::post(*io_, [this] { sweep_timer_->cancel(); });
   work_.reset();
   // Everything was closed above; give pending handlers a moment to run, then stop the loop.
@@ -265,6 +272,21 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
       complete(*c, request_id, std::make_exception_ptr(e), nullptr);
     }
   }
+}
+
+void Communicator::on_large_message(const std::shared_ptr<Connection>& c,
+                                    std::vector<std::vector<std::byte>> blocks) {
+  const auto code = blocks.front().empty() ? RmiCode{} : static_cast<RmiCode>(blocks.front()[0]);
+  if (code != RmiCode::call && code != RmiCode::notify && code != RmiCode::reply) {
+    on_message(c, join(std::move(blocks)));  // anything else keeps its place on the io thread
+    return;
+  }
+  std::unique_lock lock(bulk_mutex_);
+  if (!bulk_) bulk_ = std::make_unique<asio::thread_pool>(1);
+  asio::post(*bulk_, [this, c, blocks = std::move(blocks)]() mutable {
+    const std::vector<std::byte> message = join(std::move(blocks));
+    on_message(c, message);
+  });
 }
 
 void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway) {

@@ -21,6 +21,10 @@ namespace {
 constexpr std::size_t kReadBufferSize = 256 * 1024;
 constexpr std::size_t kMaxBatchBytes = 256 * 1024;  // one gathered write
 constexpr std::size_t kMaxBatchFrames = 64;
+// How far ahead of the frames received a receiver grants credit to each incoming message (1 MiB).
+constexpr std::uint32_t kGrantAheadFrames = 64;
+// Incoming multi-frame messages are assembled in blocks of this size.
+constexpr std::size_t kBlockBytes = 1u << 20;
 
 std::vector<std::byte> frame_bytes(const FrameHeader& h, std::span<const std::byte> payload) {
   std::vector<std::byte> out(kFrameHeaderSize + payload.size());
@@ -66,10 +70,52 @@ struct Connection::Incoming {
   std::uint32_t granted = kWindowFrames;  // frames the sender may send so far
   std::uint32_t owed_acks = 0;            // acks held back by the receive budget
   bool refused = false;
-  std::vector<std::byte> data;
+  // The message so far, in blocks of kBlockBytes: growing a large message never copies what
+  // arrived before (no reallocation on the io thread).
+  std::vector<std::vector<std::byte>> blocks;
+  std::size_t size = 0;
+
+  void append(std::span<const std::byte> payload, std::vector<std::byte>& spare) {
+    while (!payload.empty()) {
+      if (blocks.empty() || blocks.back().size() == kBlockBytes) {
+        if (blocks.empty()) {
+          // The first block grows with the message (most are small); it starts from the last
+          // message's memory, already paged in, when there is one.
+          blocks.push_back(std::move(spare));
+          spare = {};
+          blocks.back().clear();
+        } else {
+          blocks.emplace_back().reserve(kBlockBytes);
+        }
+      }
+      std::vector<std::byte>& block = blocks.back();
+      const std::size_t n = std::min(payload.size(), kBlockBytes - block.size());
+      block.insert(block.end(), payload.begin(), payload.begin() + static_cast<std::ptrdiff_t>(n));
+      payload = payload.subspan(n);
+      size += n;
+    }
+  }
 };
 
 std::atomic<std::uint64_t> Connection::next_id_{1};
+
+std::vector<std::byte> MessageHandler::join(std::vector<std::vector<std::byte>> blocks) {
+  if (blocks.size() == 1) return std::move(blocks[0]);
+  std::size_t size = 0;
+  for (const auto& b : blocks) size += b.size();
+  std::vector<std::byte> message;
+  message.reserve(size);
+  for (auto& b : blocks) {
+    message.insert(message.end(), b.begin(), b.end());
+    b = {};  // give each block back as soon as it is copied
+  }
+  return message;
+}
+
+void MessageHandler::on_large_message(const std::shared_ptr<Connection>& connection,
+                                      std::vector<std::vector<std::byte>> blocks) {
+  on_message(connection, join(std::move(blocks)));
+}
 
 Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::socket socket,
                        ConnectionRole role, std::string local_pun,
@@ -158,8 +204,11 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   ++stats_.messages_sent;
 
   // Fast path: nothing queued and the message fits one frame, so write it straight from this
-  // thread; the io thread is not woken at all when the kernel takes the whole frame.
-  if (!writing_ && control_.empty() && messages_.empty() &&
+  // thread; the io thread is not woken at all when the kernel takes the whole frame. Not while
+  // the io thread is handling what one read brought: the replies to a batch of requests then
+  // leave together in one write after it.
+  if (!writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
+      messages_.empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
     return;
   }
@@ -368,6 +417,11 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     std::lock_guard lock(send_mutex_);
     stats_.bytes_received += n;
   }
+  handling_read_ = true;
+  struct HandlingRead {
+    std::atomic<bool>& flag;
+    ~HandlingRead() { flag = false; }
+  } handling{handling_read_};
   while (state_.load() != State::closed && !close_after_flush_) {
     const std::span<const std::byte> avail(rbuf_.data() + rbegin_, rend_ - rbegin_);
     const HeaderParse parsed = parse_header(avail);
@@ -530,6 +584,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     incoming_.push_back(std::make_unique<Incoming>());
     in = incoming_.back().get();
     in->msg_no = h.msg_no;
+    spare_used_ = true;
     it = std::prev(incoming_.end());
   } else if (!in) {
     return protocol_error(fmt::format("frame #{} of unknown message #{}", h.frame_no, h.msg_no));
@@ -547,39 +602,53 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     if (h.final) incoming_.erase(it);
     return true;
   }
-  if (in->data.size() + payload.size() > options_.max_message_size) {
+  if (in->size + payload.size() > options_.max_message_size) {
     const std::string reason =
         fmt::format("message #{} from {} exceeds max_message_size ({} bytes); refused", h.msg_no,
                     describe(), options_.max_message_size);
     log_->warn("{}", reason);
     send_data_ack(h.msg_no, AckCode::no_more);
     in->refused = true;
-    incomplete_bytes_ -= in->data.size();
-    const std::vector<std::byte> received = std::move(in->data);
-    in->data = {};
+    incomplete_bytes_ -= in->size;
+    // The first block holds the first frame, which names the request to answer.
+    const std::vector<std::byte> received =
+        in->blocks.empty() ? std::vector<std::byte>{} : std::move(in->blocks.front());
+    in->blocks = {};
+    in->size = 0;
     if (h.final) incoming_.erase(it);
     handler_.on_message_refused(shared_from_this(), received, reason);
     if (state_.load() == State::closed) return false;
     release_deferred_acks();
     return true;
   }
-  in->data.insert(in->data.end(), payload.begin(), payload.end());
+  in->append(payload, spare_);
   incomplete_bytes_ += payload.size();
   if (h.final) {
-    std::vector<std::byte> message = std::move(in->data);
-    incomplete_bytes_ -= message.size();
+    std::vector<std::vector<std::byte>> blocks = std::move(in->blocks);
+    incomplete_bytes_ -= in->size;
     incoming_.erase(it);
     {
       std::lock_guard lock(send_mutex_);
       ++stats_.messages_received;
     }
-    handler_.on_message(shared_from_this(), message);
+    if (blocks.size() <= 1) {
+      std::vector<std::byte> message = blocks.empty() ? std::vector<std::byte>{} : std::move(blocks[0]);
+      handler_.on_message(shared_from_this(), message);
+      if (message.capacity() > spare_.capacity()) spare_ = std::move(message);
+    } else {
+      handler_.on_large_message(shared_from_this(), std::move(blocks));
+    }
     if (state_.load() == State::closed) return false;
     release_deferred_acks();
     return true;
   }
-  if ((h.frame_no + 1) % kAckEvery == 0) {
-    ++in->owed_acks;
+  // Keep the sender kGrantAheadFrames beyond what has arrived (docs/protocol.md 5.3: a receiver
+  // may send MORE at any time), so a large message streams at the link's speed rather than
+  // waiting for an ack every 64 KiB; the receive budget still holds acks back.
+  const std::uint32_t wanted = in->next_frame + kGrantAheadFrames;
+  const std::uint32_t promised = in->granted + in->owed_acks * kAckEvery;
+  if (wanted >= promised + kAckEvery) {
+    in->owed_acks += (wanted - promised) / kAckEvery;
     release_deferred_acks();
   }
   return true;
@@ -695,6 +764,9 @@ void Connection::on_timer() {
                          silent.count()));
         return;
       }
+      // A reassembly buffer unused for a whole heartbeat interval goes back to the allocator.
+      if (!spare_used_) spare_ = {};
+      spare_used_ = false;
       send_control(FrameCode::heartbeat, {});
       break;
     }

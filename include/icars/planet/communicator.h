@@ -4,10 +4,15 @@
 // Connection Manager (server and client roles), the ObjectAdapter that dispatches incoming
 // requests to servants, and the pending-request table that matches replies to calls. Proxies
 // (proxy.h) send calls through it. Everything it calls back (servants, listeners, async
-// completions without their own executor) runs on its io thread, which must never block.
+// completions without their own executor) runs on its io thread, which must never block —
+// except for messages larger than 1 MiB: those CALLs, NOTIFYs and REPLYs are decoded and
+// dispatched on the communicator's bulk thread (started on the first one), so that copying
+// hundreds of megabytes never holds up the small calls on the same connection. A servant that
+// takes large arguments may therefore run concurrently with the servants on the io thread.
 #pragma once
 
 #include <asio/io_context.hpp>
+#include <asio/thread_pool.hpp>
 #include <chrono>
 #include <cstdint>
 #include <exception>
@@ -109,6 +114,8 @@ class Communicator final : private MessageHandler {
   };
 
   void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
+  void on_large_message(const std::shared_ptr<Connection>& c,
+                        std::vector<std::vector<std::byte>> blocks) override;
   void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,
                           const std::string& reason) override;
   void on_open(const std::shared_ptr<Connection>& c) override;
@@ -144,6 +151,9 @@ class Communicator final : private MessageHandler {
 
   std::thread io_thread_;
   std::thread::id io_thread_id_;
+
+  std::mutex bulk_mutex_;
+  std::unique_ptr<asio::thread_pool> bulk_;  // large messages (on_large_message); lazily started
 };
 
 }  // namespace icars::planet

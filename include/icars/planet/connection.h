@@ -69,6 +69,13 @@ class MessageHandler {
   // A complete message; the span is valid only during the call.
   virtual void on_message(const std::shared_ptr<Connection>& connection,
                           std::span<const std::byte> message) = 0;
+  // A complete message larger than one reassembly block (1 MiB), in its blocks, to be handled
+  // wherever suits the layer above (the RMI layer hands it to a worker thread so that the io
+  // thread keeps serving small messages). By default: joined and passed to on_message.
+  virtual void on_large_message(const std::shared_ptr<Connection>& connection,
+                                std::vector<std::vector<std::byte>> blocks);
+  // The blocks of a large message as one contiguous message.
+  static std::vector<std::byte> join(std::vector<std::vector<std::byte>> blocks);
   // A message this side refused (too large): its first frame, so the RMI layer can answer the
   // request with an error instead of leaving the caller waiting.
   virtual void on_message_refused(const std::shared_ptr<Connection>& connection,
@@ -188,6 +195,11 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::vector<std::byte> rbuf_;
   std::size_t rbegin_ = 0;
   std::size_t rend_ = 0;
+  // The first reassembly block of the last multi-frame message, kept for the next one while
+  // such messages keep arriving; released after a heartbeat interval without one (on_timer).
+  std::vector<std::byte> spare_;
+  std::atomic<bool> handling_read_{false};  // the io thread is handling frames of one read
+  bool spare_used_ = false;
   std::vector<std::unique_ptr<Incoming>> incoming_;  // in arrival order; the first is the oldest
   std::atomic<std::size_t> incomplete_bytes_{0};
 

@@ -27,7 +27,7 @@
 namespace icars::planet {
 
 struct ReconnectPolicy {
-  std::chrono::milliseconds initial_delay{50};   // first retry after a drop or failed attempt
+  std::chrono::milliseconds initial_delay{10};   // first retry after a drop or failed attempt
   std::chrono::milliseconds max_delay{2000};     // backoff doubles up to this
   std::chrono::milliseconds connect_timeout{3000};  // per TCP connect attempt
 };
