@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs every Debian package that building, running and testing ICARS needs.
+# Installs every Debian package that building, running and testing ICARS needs
+# (with --peers, also what the side-by-side benchmarks compare against).
 # Idempotent: prints nothing and touches nothing when all packages are present.
 set -euo pipefail
 
@@ -11,6 +12,12 @@ packages=(
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
   libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
 )
+
+# `--peers`: also the systems bench/compare.sh measures PLANET against, and gnuplot for its plot.
+if [ "${1:-}" = "--peers" ]; then
+  packages+=(libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+             libzeroc-ice-dev zeroc-ice-compilers zeroc-ice-slice gnuplot-nox)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -15,6 +15,7 @@
 #include <condition_variable>
 #include <cstring>
 #include <mutex>
+#include <span>
 #include <stdexcept>
 #include <system_error>
 #include <thread>
@@ -63,12 +64,6 @@ void set_nodelay(int fd) {
   ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
 }
 
-// A request or reply header: op (requests only) and payload length.
-struct Header {
-  std::uint8_t op;
-  std::uint64_t length;
-};
-
 bool write_request(int fd, Op op, const void* payload, std::size_t n) {
   std::byte head[9];
   head[0] = static_cast<std::byte>(op);
@@ -111,57 +106,105 @@ int connect_to(const std::string& host, std::uint16_t port) {
 
 // --- Server ----------------------------------------------------------------------------------
 
+// Reads requests into a buffer and answers every complete request of one read with one write,
+// as a tuned server would; a request too large for the buffer is read straight into its own.
 class Server {
  public:
   void serve_connection(int fd) {
-    Bytes payload;
-    std::byte head[9];
-    while (read_exact(fd, head, sizeof head)) {
-      const auto op = static_cast<Op>(head[0]);
-      std::uint64_t length = 0;
-      std::memcpy(&length, head + 1, sizeof length);
-      payload.resize(length);
-      if (length > 0 && !read_exact(fd, payload.data(), length)) break;
+    std::vector<std::byte> in(kBuffer);
+    std::size_t have = 0;
+    std::vector<std::byte> out;
+    Bytes large;
+    for (;;) {
+      std::size_t at = 0;
       bool ok = true;
-      switch (op) {
-        case Op::echo_int:
-        case Op::echo:
-          ok = write_reply(fd, payload.data(), payload.size());
-          break;
-        case Op::size_of: {
-          const std::uint64_t size = payload.size();
-          ok = write_reply(fd, &size, sizeof size);
-          break;
+      while (ok && have - at >= kHeader) {
+        const auto op = static_cast<Op>(in[at]);
+        std::uint64_t length = 0;
+        std::memcpy(&length, in.data() + at + 1, sizeof length);
+        if (length <= kBuffer - kHeader) {
+          if (have - at - kHeader < length) break;  // the rest of it is still to come
+          ok = handle(fd, op, std::span(in.data() + at + kHeader, length), out);
+          at += kHeader + length;
+          if (op == Op::subscribe) return;  // the socket now belongs to the publisher
+          continue;
         }
-        case Op::subscribe: {
-          std::lock_guard lock(mutex_);
-          subscribers_.push_back(fd);
-          ok = write_reply(fd, nullptr, 0);
-          break;
-        }
-        case Op::publish: {
-          std::uint32_t spec[2] = {0, 0};  // count, payload size
-          if (payload.size() != sizeof spec) return close_connection(fd);
-          std::memcpy(spec, payload.data(), sizeof spec);
-          const Bytes event(spec[1], std::byte{0x5A});
-          std::lock_guard lock(mutex_);
-          for (std::uint32_t i = 0; i < spec[0]; ++i) {
-            for (const int s : subscribers_) write_reply(s, event.data(), event.size());
-          }
-          ok = write_reply(fd, nullptr, 0);
-          break;
-        }
-        default:
-          ok = false;
+        large.assign(in.begin() + static_cast<std::ptrdiff_t>(at + kHeader),
+                     in.begin() + static_cast<std::ptrdiff_t>(have));
+        const std::size_t got = large.size();
+        large.resize(length);
+        ok = read_exact(fd, large.data() + got, length - got) &&
+             (out.empty() || write_all(fd, out.data(), out.size()));
+        out.clear();
+        at = have;
+        ok = ok && handle(fd, op, large, out);
       }
-      if (!ok) break;
-      if (op == Op::subscribe) return;  // the socket now belongs to the publisher
+      if (!ok || (!out.empty() && !write_all(fd, out.data(), out.size()))) break;
+      out.clear();
+      std::memmove(in.data(), in.data() + at, have - at);
+      have -= at;
+      const ssize_t got = ::recv(fd, in.data() + have, in.size() - have, 0);
+      if (got <= 0) {
+        if (got < 0 && errno == EINTR) continue;
+        break;
+      }
+      have += static_cast<std::size_t>(got);
     }
-    close_connection(fd);
+    ::close(fd);
   }
 
  private:
-  void close_connection(int fd) { ::close(fd); }
+  static constexpr std::size_t kHeader = 9;
+  static constexpr std::size_t kBuffer = 256 * 1024;
+
+  static void append_reply(std::vector<std::byte>& out, std::span<const std::byte> payload) {
+    const std::uint64_t length = payload.size();
+    const auto* head = reinterpret_cast<const std::byte*>(&length);
+    out.insert(out.end(), head, head + sizeof length);
+    out.insert(out.end(), payload.begin(), payload.end());
+  }
+
+  // Small replies are appended to `out`; a large one is written at once.
+  bool handle(int fd, Op op, std::span<const std::byte> payload, std::vector<std::byte>& out) {
+    switch (op) {
+      case Op::echo_int:
+        append_reply(out, payload);
+        return true;
+      case Op::echo:
+        if (payload.size() > kBuffer) {
+          return (out.empty() || write_all(fd, out.data(), out.size())) &&
+                 (out.clear(), write_reply(fd, payload.data(), payload.size()));
+        }
+        append_reply(out, payload);
+        return true;
+      case Op::size_of: {
+        const std::uint64_t size = payload.size();
+        append_reply(out, std::as_bytes(std::span(&size, 1)));
+        return true;
+      }
+      case Op::subscribe: {
+        std::lock_guard lock(mutex_);
+        subscribers_.push_back(fd);
+        return write_reply(fd, nullptr, 0);
+      }
+      case Op::publish: {
+        std::uint32_t spec[2] = {0, 0};  // count, payload size
+        if (payload.size() != sizeof spec) return false;
+        std::memcpy(spec, payload.data(), sizeof spec);
+        // Every subscriber's events leave in one write per subscriber.
+        std::vector<std::byte> events;
+        const Bytes event(spec[1], std::byte{0x5A});
+        for (std::uint32_t i = 0; i < spec[0]; ++i) append_reply(events, event);
+        {
+          std::lock_guard lock(mutex_);
+          for (const int s : subscribers_) write_all(s, events.data(), events.size());
+        }
+        append_reply(out, {});
+        return true;
+      }
+    }
+    return false;
+  }
 
   std::mutex mutex_;
   std::vector<int> subscribers_;
@@ -311,7 +354,6 @@ class RawSubscribers final : public Subscribers {
     target_ = events;
     std::fill(counts_.begin(), counts_.end(), 0);
     complete_ = 0;
-    event_size_ = payload;
     lock.unlock();
     const std::uint32_t spec[2] = {static_cast<std::uint32_t>(events),
                                    static_cast<std::uint32_t>(payload)};
@@ -388,7 +430,6 @@ class RawSubscribers final : public Subscribers {
   std::vector<int> counts_;
   int target_ = 0;
   std::size_t complete_ = 0;
-  std::size_t event_size_ = 0;
 };
 
 class RawTcp final : public System {

@@ -9,6 +9,7 @@
 #include <future>
 #include <stdexcept>
 
+#include "icars/planet/detail/buffer_pool.h"
 #include "stream_table.h"
 
 namespace icars::planet {
@@ -218,6 +219,7 @@ void Communicator::sweep_deadlines() {
     cancel_call(id, Error(ErrorKind::timeout, fmt::format("no reply to request {} in time", id)));
   }
   streams_->sweep(now);
+  detail::trim_buffers(std::chrono::seconds(2));
   sweep_timer_->expires_after(kSweepInterval);
   sweep_timer_->async_wait([this](const std::error_code& ec) {
     if (!ec) sweep_deadlines();
@@ -284,8 +286,9 @@ void Communicator::on_large_message(const std::shared_ptr<Connection>& c,
   std::unique_lock lock(bulk_mutex_);
   if (!bulk_) bulk_ = std::make_unique<asio::thread_pool>(1);
   asio::post(*bulk_, [this, c, blocks = std::move(blocks)]() mutable {
-    const std::vector<std::byte> message = join(std::move(blocks));
+    std::vector<std::byte> message = join(std::move(blocks));
     on_message(c, message);
+    detail::give_buffer(std::move(message));
   });
 }
 

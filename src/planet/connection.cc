@@ -1,5 +1,7 @@
 #include "icars/planet/connection.h"
 
+#include "icars/planet/detail/buffer_pool.h"
+
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 #include <sys/socket.h>
@@ -78,14 +80,13 @@ struct Connection::Incoming {
   void append(std::span<const std::byte> payload, std::vector<std::byte>& spare) {
     while (!payload.empty()) {
       if (blocks.empty() || blocks.back().size() == kBlockBytes) {
-        if (blocks.empty()) {
-          // The first block grows with the message (most are small); it starts from the last
-          // message's memory, already paged in, when there is one.
+        if (blocks.empty() && spare.capacity() > 0) {
+          // The last single-block message's memory, already paged in.
           blocks.push_back(std::move(spare));
           spare = {};
           blocks.back().clear();
         } else {
-          blocks.emplace_back().reserve(kBlockBytes);
+          blocks.push_back(detail::take_buffer(kBlockBytes));
         }
       }
       std::vector<std::byte>& block = blocks.back();
@@ -103,11 +104,10 @@ std::vector<std::byte> MessageHandler::join(std::vector<std::vector<std::byte>> 
   if (blocks.size() == 1) return std::move(blocks[0]);
   std::size_t size = 0;
   for (const auto& b : blocks) size += b.size();
-  std::vector<std::byte> message;
-  message.reserve(size);
+  std::vector<std::byte> message = detail::take_buffer(size);
   for (auto& b : blocks) {
     message.insert(message.end(), b.begin(), b.end());
-    b = {};  // give each block back as soon as it is copied
+    detail::give_buffer(std::move(b));  // each block is recycled as soon as it is copied
   }
   return message;
 }
@@ -131,7 +131,8 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
       log_(std::move(logger)),
       acceptor_(std::move(acceptor)),
       id_(next_id_.fetch_add(1)),
-      rbuf_(kReadBufferSize) {
+      // Not zero-filled: a connection carrying small messages only ever touches the first pages.
+      rbuf_(std::make_unique_for_overwrite<std::byte[]>(kReadBufferSize)) {
   options_.validate();
   std::error_code ec;
   socket_.set_option(asio::ip::tcp::no_delay(true), ec);
@@ -376,6 +377,7 @@ void Connection::on_written(const std::error_code& ec, std::size_t n) {
   }
   for (auto& m : done) {
     if (m.on_sent) m.on_sent(nullptr);
+    detail::give_buffer(std::move(m.payload));  // a large message's memory serves the next one
   }
   write_batch();
   if (close_after_flush_) {
@@ -391,12 +393,12 @@ void Connection::on_written(const std::error_code& ec, std::size_t n) {
 
 void Connection::read_more() {
   if (state_.load() == State::closed || close_after_flush_) return;
-  if (rend_ == rbuf_.size()) {  // a complete frame always fits after compaction
-    std::memmove(rbuf_.data(), rbuf_.data() + rbegin_, rend_ - rbegin_);
+  if (rend_ == kReadBufferSize) {  // a complete frame always fits after compaction
+    std::memmove(rbuf_.get(), rbuf_.get() + rbegin_, rend_ - rbegin_);
     rend_ -= rbegin_;
     rbegin_ = 0;
   }
-  socket_.async_read_some(asio::buffer(rbuf_.data() + rend_, rbuf_.size() - rend_),
+  socket_.async_read_some(asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_),
                           [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
                             self->on_read(ec, n);
                           });
@@ -423,7 +425,7 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     ~HandlingRead() { flag = false; }
   } handling{handling_read_};
   while (state_.load() != State::closed && !close_after_flush_) {
-    const std::span<const std::byte> avail(rbuf_.data() + rbegin_, rend_ - rbegin_);
+    const std::span<const std::byte> avail(rbuf_.get() + rbegin_, rend_ - rbegin_);
     const HeaderParse parsed = parse_header(avail);
     if (!parsed.error.empty()) {
       if (parsed.version_mismatch && role_ == ConnectionRole::server &&

@@ -4,7 +4,29 @@
 
 #include <limits>
 
+#include "icars/planet/detail/buffer_pool.h"
+
 namespace icars::planet {
+
+void Writer::raw_large(std::span<const std::byte> bytes) {
+  const std::size_t needed = out_->size() + bytes.size();
+  if (out_->capacity() < needed) {
+    std::vector<std::byte> bigger = detail::take_buffer(needed);
+    bigger.insert(bigger.end(), out_->begin(), out_->end());
+    out_->swap(bigger);
+    detail::give_buffer(std::move(bigger));
+  }
+  out_->insert(out_->end(), bytes.begin(), bytes.end());
+}
+
+void detail::recycle(Binary& value) { detail::give_buffer(std::move(value.bytes)); }
+
+std::vector<std::byte> detail::copy_bytes(std::span<const std::byte> bytes) {
+  if (bytes.size() < detail::kPooledBufferBytes) return {bytes.begin(), bytes.end()};
+  std::vector<std::byte> copy = detail::take_buffer(bytes.size());
+  copy.insert(copy.end(), bytes.begin(), bytes.end());
+  return copy;
+}
 
 void Writer::length(std::size_t n) {
   if (n > std::numeric_limits<std::uint32_t>::max()) {

@@ -192,7 +192,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool was_open_ = false;
 
   // Receive side (io thread only).
-  std::vector<std::byte> rbuf_;
+  std::unique_ptr<std::byte[]> rbuf_;  // kReadBufferSize bytes
   std::size_t rbegin_ = 0;
   std::size_t rend_ = 0;
   // The first reassembly block of the last multi-frame message, kept for the next one while

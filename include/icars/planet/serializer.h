@@ -85,7 +85,10 @@ class Writer {
   void u64(std::uint64_t v) { detail::store_be64(grow(8), v); }
   void f32(float v) { u32(std::bit_cast<std::uint32_t>(v)); }
   void f64(double v) { u64(std::bit_cast<std::uint64_t>(v)); }
-  void raw(std::span<const std::byte> bytes) { out_->insert(out_->end(), bytes.begin(), bytes.end()); }
+  void raw(std::span<const std::byte> bytes) {
+    if (bytes.size() >= kLargeRaw) return raw_large(bytes);
+    out_->insert(out_->end(), bytes.begin(), bytes.end());
+  }
   void length(std::size_t n);  // u32 length prefix; throws bad_data above 4 GiB - 1
   void str(std::string_view s) {
     length(s.size());
@@ -100,6 +103,8 @@ class Writer {
     out_->resize(at + n);
     return out_->data() + at;
   }
+  static constexpr std::size_t kLargeRaw = std::size_t{1} << 20;
+  void raw_large(std::span<const std::byte> bytes);  // grows into recycled memory (buffer_pool.h)
   std::vector<std::byte>* out_;
 };
 
@@ -162,6 +167,19 @@ concept Encodable = requires(Writer& w, Reader& r, const T& v) {
 };
 
 namespace detail {
+// A copy of `bytes`; a large one is made in recycled memory (buffer_pool.h).
+std::vector<std::byte> copy_bytes(std::span<const std::byte> bytes);
+
+// Once a decoded value is done with (a servant's arguments and result), the memory of its large
+// buffers goes back to the pool.
+template <class T>
+void recycle(T&) {}
+void recycle(Binary& value);
+template <class... T>
+void recycle_all(std::tuple<T...>& values) {
+  std::apply([](auto&... v) { (recycle(v), ...); }, values);
+}
+
 template <class T, TypeCode C, std::size_t Size>
 struct ScalarCodec {
   static constexpr std::size_t kMinSize = Size;
@@ -221,8 +239,7 @@ struct Codec<Binary> : detail::ScalarCodec<Binary, TypeCode::binary, 4> {
   }
   static Binary decode(Reader& r) {
     const std::size_t n = r.count(1, "binary");
-    auto bytes = r.raw(n);
-    return Binary{std::vector<std::byte>(bytes.begin(), bytes.end())};
+    return Binary{detail::copy_bytes(r.raw(n))};
   }
 };
 template <>

@@ -211,7 +211,9 @@ class Servant {
       } else {
         R result = detail::invoke_with_current(fn, args, current);
         if (out) encode_tagged(*out, result);
+        detail::recycle(result);
       }
+      detail::recycle_all(args);
       return std::nullopt;
     };
   }
