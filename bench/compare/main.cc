@@ -25,7 +25,6 @@
 #include <iostream>
 #include <map>
 #include <optional>
-#include <sstream>
 #include <thread>
 
 #include "child_process.h"
@@ -71,22 +70,6 @@ std::int64_t now_ns() {
 
 double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
-}
-
-// Peak and current resident set of a process, in MiB (from /proc/PID/status).
-std::pair<double, double> rss_mib(pid_t pid) {
-  std::ifstream status(fmt::format("/proc/{}/status", pid));
-  double peak = 0;
-  double now = 0;
-  for (std::string line; std::getline(status, line);) {
-    std::istringstream in(line);
-    std::string key;
-    double kib = 0;
-    in >> key >> kib;
-    if (key == "VmHWM:") peak = kib / 1024.0;
-    if (key == "VmRSS:") now = kib / 1024.0;
-  }
-  return {peak, now};
 }
 
 double percentile(std::vector<double> values, double p) {
@@ -193,6 +176,9 @@ void head_of_line(System& system, Client& client, const Sizes& sizes) {
   std::atomic<bool> echoing{false};
   std::atomic<bool> done{false};
   std::vector<double> us;
+  double worst_us = 0;
+  double worst_at_ms = 0;  // when the slowest small call started, from the start of the echo
+  const Clock::time_point echo_start = Clock::now();
   std::string small_error;
   std::thread small;
   const bool multiplexed = system.name() != "raw-tcp";
@@ -205,17 +191,22 @@ void head_of_line(System& system, Client& client, const Sizes& sizes) {
           const std::int32_t got = client.call(i);
           const double took = seconds_since(start) * 1e6;
           if (got != i) throw std::runtime_error("echo_int returned a different value");
-          if (!done.load()) us.push_back(took);
+          if (!done.load()) {
+            us.push_back(took);
+            if (took > worst_us) {
+              worst_us = took;
+              worst_at_ms = std::chrono::duration<double, std::milli>(start - echo_start).count();
+            }
+          }
         }
       } catch (const std::exception& e) {
         small_error = e.what();
       }
     });
   }
-  const auto start = Clock::now();
   echoing = true;
   const Bytes back = client.echo(big);
-  const double echo_s = seconds_since(start);
+  const double echo_s = seconds_since(echo_start);
   done = true;
   if (small.joinable()) small.join();
   if (back != big) throw std::runtime_error("the large echo came back different");
@@ -227,6 +218,7 @@ void head_of_line(System& system, Client& client, const Sizes& sizes) {
     result["hol_small_p50_us"] = percentile(us, 0.5);
     result["hol_small_p99_us"] = percentile(us, 0.99);
     result["hol_small_max_ms"] = percentile(us, 1.0) / 1e3;
+    result["hol_small_max_at_ms"] = worst_at_ms;
   }
   emit(result);
 }
@@ -253,11 +245,6 @@ void reconnect(Client& client) {
   emit({{"workload", "reconnect"}, {"down_ns", down}, {"up_ns", now_ns()}});
 }
 
-void footprint(Client& client) {
-  for (int i = 0; i < 10000; ++i) client.call(i);
-  emit({{"workload", "footprint"}, {"client_rss_mib", rss_mib(::getpid()).first}});
-}
-
 int run_client(const std::string& system_name, std::uint16_t port,
                const std::vector<std::string>& workloads, bool quick) {
   const Sizes sizes = quick ? Sizes::quick() : Sizes{};
@@ -278,8 +265,6 @@ int run_client(const std::string& system_name, std::uint16_t port,
       fan_out(*system, port, sizes);
     } else if (w == "reconnect") {
       reconnect(*client);
-    } else if (w == "footprint") {
-      footprint(*client);
     } else {
       throw std::invalid_argument("unknown workload '" + w + "'");
     }
@@ -334,8 +319,6 @@ const std::vector<Metric>& metrics() {
       {"hol_small_calls", "small calls during echo", "calls", true},
       {"fanout_deliveries_s", "event fan-out", "deliveries/s", true},
       {"reconnect_ms", "reconnection", "ms", false},
-      {"server_rss_mib", "server peak RSS", "MiB", false},
-      {"client_rss_mib", "client peak RSS", "MiB", false},
   };
   return all;
 }
@@ -351,7 +334,6 @@ class Driver {
   void repetition(const std::string& system, Samples& samples) {
     run_workloads(system, samples);
     run_reconnect(system, samples);
-    run_footprint(system, samples);
   }
 
  private:
@@ -417,14 +399,6 @@ class Driver {
     std::cerr << fmt::format("  {:8} reconnect {:.2f} ms after the new server was ready\n",
                              system, ms);
     samples[system]["reconnect_ms"].push_back(ms);
-  }
-
-  void run_footprint(const std::string& system, Samples& samples) {
-    const std::uint16_t port = free_tcp_port();
-    Server server = start_server(system, port);
-    auto client = start_client(system, port, "footprint");
-    record(next_result(*client, system), system, samples);
-    samples[system]["server_rss_mib"].push_back(rss_mib(server.process->pid()).first);
   }
 
   std::string self_;

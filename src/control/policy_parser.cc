@@ -102,12 +102,20 @@ class Parser {
 
  private:
   // --- Diagnostics ----------------------------------------------------------------------------
-  int line_of(std::ptrdiff_t offset) const {
+  // Line numbers come from the offsets of the newlines, found once: counting them from the start
+  // for every node made parsing quadratic in the file's size.
+  int line_of(std::ptrdiff_t offset) {
     if (offset < 0) return 0;
+    if (!newlines_indexed_) {
+      for (std::size_t i = 0; i < xml_.size(); ++i) {
+        if (xml_[i] == '\n') newlines_.push_back(i);
+      }
+      newlines_indexed_ = true;
+    }
     const auto end = std::min<std::size_t>(static_cast<std::size_t>(offset), xml_.size());
-    return 1 + static_cast<int>(std::count(xml_.begin(), xml_.begin() + static_cast<std::ptrdiff_t>(end), '\n'));
+    return 1 + static_cast<int>(std::lower_bound(newlines_.begin(), newlines_.end(), end) - newlines_.begin());
   }
-  int line(const pugi::xml_node& node) const { return line_of(node.offset_debug()); }
+  int line(const pugi::xml_node& node) { return line_of(node.offset_debug()); }
   void error(int line, std::string message) { errors_.push_back({file_, line, false, std::move(message)}); }
   void warning(int line, std::string message) { warnings_.push_back({file_, line, true, std::move(message)}); }
 
@@ -392,6 +400,8 @@ class Parser {
   }
 
   std::string_view xml_;
+  std::vector<std::size_t> newlines_;  // offsets of the '\n's in xml_
+  bool newlines_indexed_ = false;
   std::string file_;
   const b::BehaviorRegistry& registry_;
   std::vector<Diagnostic> errors_;

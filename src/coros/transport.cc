@@ -188,6 +188,12 @@ UdpTransport::UdpTransport(asio::io_context& io, TransportOptions options)
   impl_->self = impl_->unicast.local_endpoint();
   impl_->group.open(asio::ip::udp::v4());
   impl_->group.set_option(asio::socket_base::reuse_address(true));
+  // A fleet's HELLOs and bids arrive in bursts; the default receive buffer (about 200 KiB)
+  // overflows when an agent's thread is busy for a moment (the kernel caps the request at
+  // net.core.rmem_max; a smaller buffer only means more datagrams dropped, which the protocol
+  // tolerates).
+  impl_->unicast.set_option(asio::socket_base::receive_buffer_size(4 << 20), ec);
+  impl_->group.set_option(asio::socket_base::receive_buffer_size(4 << 20), ec);
   impl_->group.bind({asio::ip::address_v4::any(), options_.broadcast_port}, ec);
   if (ec) {
     throw CorosError(fmt::format("cannot bind the fleet's broadcast port {}: {}",

@@ -329,6 +329,11 @@ void ConnectionManager::on_message(const std::shared_ptr<Connection>& c,
   upper_.on_message(c, m);
 }
 
+void ConnectionManager::on_large_message(const std::shared_ptr<Connection>& c,
+                                         std::vector<std::vector<std::byte>> blocks) {
+  upper_.on_large_message(c, std::move(blocks));
+}
+
 void ConnectionManager::on_message_refused(const std::shared_ptr<Connection>& c,
                                            std::span<const std::byte> first,
                                            const std::string& reason) {

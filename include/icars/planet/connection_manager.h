@@ -127,6 +127,8 @@ class ConnectionManager final : public MessageHandler {
 
   // MessageHandler (called by connections on the io thread)
   void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
+  void on_large_message(const std::shared_ptr<Connection>& c,
+                        std::vector<std::vector<std::byte>> blocks) override;
   void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,
                           const std::string& reason) override;
   void on_open(const std::shared_ptr<Connection>& c) override;
