@@ -25,10 +25,6 @@ constexpr std::size_t kMaxBatchBytes = 256 * 1024;  // one gathered write
 constexpr std::size_t kMaxBatchFrames = 64;
 // How far ahead of the frames received a receiver grants credit to each incoming message (1 MiB).
 constexpr std::uint32_t kGrantAheadFrames = 64;
-// Set on an io thread while it handles the frames of one read: what it sends meanwhile (the
-// replies to a batch of requests) is queued and leaves in one write afterwards. Other threads
-// keep the direct-send fast path.
-thread_local bool t_handling_read = false;
 // Incoming multi-frame messages are assembled in blocks of this size.
 constexpr std::size_t kBlockBytes = 1u << 20;
 
@@ -209,9 +205,10 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   ++stats_.messages_sent;
 
   // Fast path: nothing queued and the message fits one frame, so write it straight from this
-  // thread; the io thread is not woken at all when the kernel takes the whole frame. Not from
-  // the io thread while it handles what one read brought (t_handling_read).
-  if (!writing_ && !t_handling_read && control_.empty() &&
+  // thread; the io thread is not woken at all when the kernel takes the whole frame. Not while
+  // the io thread is handling what one read brought: the replies to a batch of requests then
+  // leave together in one write after it.
+  if (!writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
       messages_.empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
     return;
@@ -422,10 +419,11 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     std::lock_guard lock(send_mutex_);
     stats_.bytes_received += n;
   }
-  t_handling_read = true;
+  handling_read_ = true;
   struct HandlingRead {
-    ~HandlingRead() { t_handling_read = false; }
-  } handling;
+    std::atomic<bool>& flag;
+    ~HandlingRead() { flag = false; }
+  } handling{handling_read_};
   while (state_.load() != State::closed && !close_after_flush_) {
     const std::span<const std::byte> avail(rbuf_.get() + rbegin_, rend_ - rbegin_);
     const HeaderParse parsed = parse_header(avail);

@@ -198,6 +198,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   // The first reassembly block of the last multi-frame message, kept for the next one while
   // such messages keep arriving; released after a heartbeat interval without one (on_timer).
   std::vector<std::byte> spare_;
+  std::atomic<bool> handling_read_{false};  // the io thread is handling frames of one read
   bool spare_used_ = false;
   std::vector<std::unique_ptr<Incoming>> incoming_;  // in arrival order; the first is the oldest
   std::atomic<std::size_t> incomplete_bytes_{0};
