@@ -16,4 +16,9 @@ cmake --preset release -DICARS_BUILD_TESTS=OFF >/dev/null
 cmake --build build/release -j "$jobs"
 build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
 build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null
+build/release/bench/upper_bench --runs 1 >/dev/null
+results=$(mktemp -d)
+build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
+  --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; exit 1; }
+rm -rf "$results"
 echo "test.sh: all tests passed"

@@ -510,7 +510,7 @@ struct Report {
     const fs::path script = fs::path(png).replace_extension(".gp");
     {
       std::ofstream out(data);
-      out << "workload";
+      out << "# workload";
       for (const auto& s : systems) out << " " << s;
       out << "\n";
       for (const auto& m : metrics()) {
@@ -532,7 +532,7 @@ struct Report {
           << "set style fill solid 0.85 border -1\nset boxwidth 0.9\n"
           << "set logscale y 10\nset grid ytics\nset ylabel 'system / PLANET (log scale)'\n"
           << "set xtics rotate by -35 left noenhanced\nset key top left\n"
-          << "set bmargin 12\nset rmargin 8\n";
+          << "set bmargin 13\nset rmargin 16\n";
       out << "plot ";
       for (std::size_t i = 0; i < systems.size(); ++i) {
         out << (i ? ", " : "") << "'" << data.string() << "' using " << i + 2
