@@ -39,6 +39,7 @@
 #include "icars/coros/agent.h"
 #include "icars/coros/courier.h"
 #include "icars/coros/discovery.h"
+#include "bench_util.h"
 
 namespace {
 
@@ -233,15 +234,8 @@ RunResult run_once(int robots, std::chrono::milliseconds hello, std::chrono::mil
   return result;
 }
 
-struct Stats {
-  double median, min, max;
-};
-Stats stats(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  const double median = n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
-  return {median, v.front(), v.back()};
-}
+using icars::bench::Stats;
+using icars::bench::stats;
 
 }  // namespace
 

@@ -36,6 +36,7 @@
 #include <utility>
 #include <vector>
 
+#include "bench_util.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/event.h"
 #include "icars/planet/proxy.h"
@@ -53,41 +54,11 @@ constexpr std::size_t kBulkSize = 1u << 20;     // 1 MiB transfers
 constexpr int kInFlight = 32;                   // outstanding async calls
 constexpr std::int64_t kNotifyBatch = 1000;     // NOTIFYs per iteration, then one `counted`
 
-[[noreturn]] void throw_errno(const char* what) {
-  throw std::system_error(errno, std::generic_category(), what);
-}
+using icars::bench::read_exact;
+using icars::bench::throw_errno;
+using icars::bench::write_all;
 
 // --- Raw TCP: blocking POSIX sockets --------------------------------------------------------
-
-// Reads exactly n bytes; false on EOF or error.
-bool read_exact(int fd, void* data, std::size_t n) {
-  auto* p = static_cast<std::byte*>(data);
-  while (n > 0) {
-    const ssize_t got = ::recv(fd, p, n, 0);
-    if (got > 0) {
-      p += got;
-      n -= static_cast<std::size_t>(got);
-    } else if (got == 0 || errno != EINTR) {
-      return false;
-    }
-  }
-  return true;
-}
-
-// Writes all n bytes; false on error.
-bool write_all(int fd, const void* data, std::size_t n) {
-  const auto* p = static_cast<const std::byte*>(data);
-  while (n > 0) {
-    const ssize_t put = ::send(fd, p, n, MSG_NOSIGNAL);
-    if (put > 0) {
-      p += put;
-      n -= static_cast<std::size_t>(put);
-    } else if (put < 0 && errno != EINTR) {
-      return false;
-    }
-  }
-  return true;
-}
 
 bool set_nodelay(int fd) {
   const int one = 1;

@@ -58,6 +58,7 @@
 #include "icars/control/collaboration.h"
 #include "icars/control/coordinator.h"
 #include "icars/control/policy.h"
+#include "bench_util.h"
 
 namespace {
 
@@ -69,15 +70,8 @@ using Clock = std::chrono::steady_clock;
 using Ms = std::chrono::duration<double, std::milli>;
 using namespace std::chrono_literals;
 
-struct Stats {
-  double median, min, max;
-};
-Stats stats(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  const double median = n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
-  return {median, v.front(), v.back()};
-}
+using icars::bench::Stats;
+using icars::bench::stats;
 
 // --- Control: a chain of states ---------------------------------------------------------------
 

@@ -20,44 +20,13 @@
 #include <system_error>
 #include <thread>
 
+#include "../bench_util.h"
 #include "system.h"
 
 namespace icars::bench {
 namespace {
 
 enum class Op : std::uint8_t { echo_int = 1, size_of = 2, echo = 3, subscribe = 4, publish = 5 };
-
-[[noreturn]] void throw_errno(const char* what) {
-  throw std::system_error(errno, std::generic_category(), what);
-}
-
-bool read_exact(int fd, void* data, std::size_t n) {
-  auto* p = static_cast<std::byte*>(data);
-  while (n > 0) {
-    const ssize_t got = ::recv(fd, p, n, 0);
-    if (got > 0) {
-      p += got;
-      n -= static_cast<std::size_t>(got);
-    } else if (got == 0 || errno != EINTR) {
-      return false;
-    }
-  }
-  return true;
-}
-
-bool write_all(int fd, const void* data, std::size_t n) {
-  const auto* p = static_cast<const std::byte*>(data);
-  while (n > 0) {
-    const ssize_t put = ::send(fd, p, n, MSG_NOSIGNAL);
-    if (put > 0) {
-      p += put;
-      n -= static_cast<std::size_t>(put);
-    } else if (put < 0 && errno != EINTR) {
-      return false;
-    }
-  }
-  return true;
-}
 
 void set_nodelay(int fd) {
   const int one = 1;
