@@ -9,11 +9,14 @@
 #include <unistd.h>
 
 #include <asio/use_future.hpp>
+#include <atomic>
 #include <cstring>
 #include <future>
+#include <semaphore>
 
 #include "child_process.h"
 #include "icars/planet/communicator.h"
+#include "icars/planet/detail/buffer_pool.h"
 #include "icars/planet/detail/byte_order.h"
 #include "icars/planet/proxy.h"
 #include "test_interfaces.h"
@@ -50,6 +53,73 @@ TEST(Transfer, SmallCallsCompleteWhileA50MiBBinaryIsInFlight) {
   std::cout << "small calls completed during the 50 MiB transfer: " << completed_during_transfer
             << ", slowest " << std::chrono::duration_cast<std::chrono::microseconds>(slowest).count()
             << " us\n";
+}
+
+// A servant still working on a call with a large argument (here: held until released) does not
+// hold up small calls on the same connection: large messages are dispatched on the bulk thread.
+struct Holder {
+  static constexpr std::string_view type_id = "test::Holder";
+  static constexpr Operation<std::int64_t(Binary)> hold{"hold"};
+  static constexpr Operation<std::int32_t(std::int32_t)> ping{"ping"};
+};
+
+TEST(Transfer, SmallCallsAreAnsweredWhileAServantWorksOnALargeArgument) {
+  Communicator server;
+  std::atomic<bool> holding{false};
+  std::binary_semaphore release{0};
+  auto servant = std::make_shared<Servant>(std::string(Holder::type_id));
+  servant->implement(Holder::hold, [&](const Binary& b) {
+    holding = true;
+    // Bounded, so a broken bulk path fails the test instead of hanging it.
+    const bool released = release.try_acquire_for(30s);
+    return released ? static_cast<std::int64_t>(b.bytes.size()) : std::int64_t{-1};
+  });
+  servant->implement(Holder::ping, [](std::int32_t x) { return x; });
+  server.adapter().add("/holder", servant);
+  const std::uint16_t port = server.listen("127.0.0.1", 0);
+
+  Communicator client;
+  auto peer = client.connect("127.0.0.1", port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  const Proxy holder = Proxy(client, peer, "/holder").with_timeout(60s);
+  Binary big;
+  big.bytes.assign(3u << 20, std::byte{0x5A});  // three reassembly blocks
+  auto held = holder.async_call(Holder::hold, {std::move(big)}, asio::use_future);
+  ASSERT_TRUE(planet_test::wait_until([&] { return holding.load(); }, 30s));
+
+  // Dispatched on the io thread, the held servant would leave these unanswered until released.
+  const Proxy quick = holder.with_timeout(5s);
+  for (std::int32_t i = 0; i < 100; ++i) ASSERT_EQ(quick.call(Holder::ping, i), i);
+  EXPECT_EQ(held.wait_for(0s), std::future_status::timeout);
+  release.release();
+  EXPECT_EQ(held.get(), std::int64_t{3} << 20);
+}
+
+TEST(BufferPool, RecyclesLargeBuffersAndGivesBackIdleOnes) {
+  detail::trim_buffers(0s);
+  ASSERT_EQ(detail::pooled_bytes(), 0u);
+  std::vector<std::byte> small(1000);
+  detail::give_buffer(std::move(small));
+  EXPECT_EQ(detail::pooled_bytes(), 0u) << "buffers below 1 MiB are not pooled";
+
+  std::vector<std::byte> large = detail::take_buffer(2u << 20);
+  ASSERT_GE(large.capacity(), 2u << 20);
+  large.assign(2u << 20, std::byte{1});
+  const std::byte* memory = large.data();
+  detail::give_buffer(std::move(large));
+  EXPECT_GE(detail::pooled_bytes(), 2u << 20);
+
+  std::vector<std::byte> again = detail::take_buffer(1u << 20);
+  EXPECT_EQ(again.data(), memory) << "the pooled buffer is handed out again";
+  EXPECT_TRUE(again.empty());
+  EXPECT_EQ(detail::pooled_bytes(), 0u);
+  EXPECT_GT(detail::take_buffer(4u << 20).capacity(), 0u) << "too large for the pool: allocated";
+
+  detail::give_buffer(std::move(again));
+  detail::trim_buffers(1h);
+  EXPECT_GT(detail::pooled_bytes(), 0u) << "recently used buffers stay";
+  detail::trim_buffers(0s);
+  EXPECT_EQ(detail::pooled_bytes(), 0u) << "idle buffers go back to the allocator";
 }
 
 TEST(Transfer, SenderMemoryIsBoundedWhenTheReceiverStopsReadingAndNothingIsLost) {
