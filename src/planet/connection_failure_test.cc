@@ -36,8 +36,8 @@ struct EventLog {
 TEST(ConnectionFailure, ClientReconnectsAfterTheServerIsKilledAndRestarted) {
   auto server = planet_test::start_test_server();
   const std::uint16_t port = server.port;
+  EventLog events;  // outlives the client: its io thread reports the last disconnect
   Communicator client;
-  EventLog events;
   client.connections().add_listener([&](const ConnectionEvent& e) { events.record(e); });
   auto peer = client.connect("127.0.0.1", port);
   ASSERT_TRUE(peer->wait_connected(20s));
@@ -87,8 +87,8 @@ TEST(ConnectionFailure, FrozenPeerIsDetectedByHeartbeatTimeout) {
   CommunicatorOptions options;
   options.connection.heartbeat_interval = 100ms;
   options.connection.heartbeat_timeout = 600ms;
+  EventLog events;  // outlives the client: its io thread reports the last disconnect
   Communicator client(options);
-  EventLog events;
   client.connections().add_listener([&](const ConnectionEvent& e) { events.record(e); });
   auto peer = client.connect("127.0.0.1", server.port);
   ASSERT_TRUE(peer->wait_connected(20s));
