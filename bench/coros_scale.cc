@@ -118,11 +118,13 @@ struct RunResult {
 RunResult run_once(int robots, std::chrono::milliseconds hello, std::chrono::milliseconds bid_window,
                    double speedup, const std::shared_ptr<const MapPlanner>& map) {
   const std::uint16_t port = free_udp_port();
+  const FleetKey key = FleetKey::generate();  // agents sign and check every datagram
   auto config = [&](const std::string& id, const std::string& role) {
     AgentConfiguration c;
     c.id = id;
     c.role = role;
     c.transport.broadcast_port = port;
+    c.transport.key = key;
     c.hello_period = hello;
     c.neighbor_expiry = hello * 10;
     c.bid_window = bid_window;  // an upper bound: auctions close as soon as every robot has bid

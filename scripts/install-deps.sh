@@ -6,9 +6,11 @@ set -euo pipefail
 
 packages=(
   build-essential cmake ninja-build pkg-config
-  libasio-dev libssl-dev
+  libasio-dev libssl-dev openssl
   libspdlog-dev libfmt-dev libcli11-dev libpugixml-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # clang with libFuzzer and the sanitizer runtimes for scripts/fuzz.sh
+  clang libclang-rt-14-dev
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
   libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
 )

@@ -10,6 +10,7 @@ jobs=$(nproc)
 cmake --preset asan -DICARS_BUILD_EXAMPLES=ON >/dev/null
 cmake --build build/asan -j "$jobs"
 ctest --preset asan -j "$jobs"
+scripts/fuzz.sh "${ICARS_FUZZ_SECONDS:-60}"
 
 # The tests were compiled (with -Werror) and run above; the release tree builds the rest.
 cmake --preset release -DICARS_BUILD_TESTS=OFF >/dev/null

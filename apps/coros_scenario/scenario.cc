@@ -1,10 +1,12 @@
 #include "scenario.h"
 
+#include <fcntl.h>
 #include <fmt/format.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -313,6 +315,9 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
     }
   }
 
+  // One fleet key per run, in every agent's configuration: the agents sign and check every
+  // datagram, and nothing else on the host can take part.
+  const std::string fleet_key = coros::FleetKey::generate().to_hex();
   const auto base = [&](const std::string& id, const std::string& role, std::size_t index) {
     json c;
     c["id"] = id;
@@ -328,6 +333,7 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
     c["retry_period_ms"] = 100;
     c["max_retries"] = 20;
     c["map"] = plan.map.string();
+    c["key"] = fleet_key;
     if (faults) {
       c["faults"] = fmt::format(
           "drop={},duplicate={},delay={},max_delay_ms={},seed={}", faults->drop, faults->duplicate,
@@ -475,6 +481,25 @@ void write_file(const fs::path& file, const std::string& text) {
   if (!out) throw std::runtime_error(fmt::format("cannot write {}", file.string()));
 }
 
+// An agent configuration holds the fleet key: only its owner may read it (mode 0600, also
+// when --keep-dir reuses a file that was readable).
+void write_private_file(const fs::path& file, const std::string& text) {
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+  bool ok = fd >= 0 && ::fchmod(fd, 0600) == 0;
+  for (std::size_t done = 0; ok && done < text.size();) {
+    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    ok = n > 0;
+    if (ok) done += static_cast<std::size_t>(n);
+  }
+  const int error = errno;
+  if (fd >= 0 && ::close(fd) != 0) ok = false;
+  if (!ok) {
+    throw std::runtime_error(
+        fmt::format("cannot write {}: {}", file.string(), std::strerror(error)));
+  }
+}
+
 // Runs the agents of a plan until the user is done, the timeout passes or we are asked to
 // stop; feeds their events to the report and prints the interesting ones.
 class ScenarioRunner {
@@ -493,9 +518,11 @@ class ScenarioRunner {
     for (const auto& a : plan_.agents) {
       if (a.role == "robot") start(a);
     }
-    say(fmt::format("starting {} robot{} (broadcast port {}, agent logs in {})",
-                    plan_.agents.size() - 1, plan_.agents.size() == 2 ? "" : "s",
-                    plan_.broadcast_port, plan_.dir.string()));
+    say(fmt::format(
+        "starting {} robot{} (broadcast port {}, datagrams signed with a fresh fleet key, agent "
+        "logs in {})",
+        plan_.agents.size() - 1, plan_.agents.size() == 2 ? "" : "s", plan_.broadcast_port,
+        plan_.dir.string()));
     while (!should_stop()) {
       pump(100);
       std::size_t up = 0, ended = 0;
@@ -698,7 +725,7 @@ int run_scenario(const ScenarioOptions& options) {
   WorkDir dir(options.keep_dir);
   const ScenarioPlan plan = plan_scenario(options, dir.path(), port);
   dir.create();
-  for (const auto& a : plan.agents) write_file(a.config_file, a.config.dump(2) + "\n");
+  for (const auto& a : plan.agents) write_private_file(a.config_file, a.config.dump(2) + "\n");
 
   struct sigaction stop {};
   stop.sa_handler = on_stop_signal;

@@ -199,6 +199,37 @@ TEST_F(CorosScenario, LossyNetworkDeliversEveryTaskOnce) {
   }
 }
 
+TEST_F(CorosScenario, AgentsShareAFreshKeyAndRefuseToStartWithout) {
+  const fs::path keep = make_temp_dir();
+  const ScenarioRun run = run_coros(
+      {"--robots", "2", "--deliveries", "office_101>office_112", "--keep-dir", keep.string()});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  // Every agent got the run's key, in a configuration only its owner may read.
+  const json robot = json::parse(read_file(keep / "robot1.json"));
+  const json user = json::parse(read_file(keep / "user.json"));
+  ASSERT_TRUE(robot["key"].is_string()) << robot.dump();
+  EXPECT_EQ(robot["key"].get<std::string>().size(), 64U);
+  EXPECT_EQ(robot["key"], user["key"]);
+  EXPECT_EQ(fs::status(keep / "robot1.json").permissions() &
+                (fs::perms::group_all | fs::perms::others_all),
+            fs::perms::none);
+
+  // The same configuration without its key: icars-agent refuses to start and says why.
+  json keyless = robot;
+  keyless.erase("key");
+  const fs::path file = keep / "keyless.json";
+  std::ofstream(file) << keyless.dump(2) << "\n";
+  planet_test::ChildProcess agent(
+      {"/bin/sh", "-c", "exec \"$0\" \"$@\" 2>&1", kAgent, file.string()});
+  std::string output;
+  while (const auto line = agent.read_line(std::chrono::seconds(30))) output += *line + "\n";
+  const int status = agent.wait();
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 2) << output;
+  EXPECT_NE(output.find("keyless.json: no fleet key"), std::string::npos) << output;
+  EXPECT_NE(output.find("'insecure': true"), std::string::npos) << output;
+  fs::remove_all(keep);
+}
+
 TEST(CorosScenarioUsage, BadInputsExitWithTwoAndSayWhy) {
   struct Case {
     std::vector<std::string> args;

@@ -4,16 +4,27 @@
 // server comes back.
 //
 //   icars-device-manager --house houses/paper_house.xml --server 127.0.0.1:7000 [--speedup 60]
+//                        [--effects FILE] [--epoch UNIX_MS]
 //
 // Prints "REGISTERED <round> <devices>" after each complete registration round (tests wait on
-// it). Stops on SIGINT/SIGTERM.
+// it), and "LINK DOWN <reason>" whenever the server cannot be reached or denies the connection. With --effects, writes one JSON line per command a device executed (its effect, with the
+// request id of the call), the device side of the record `icars run --trace` keeps of the
+// commands it sent. With --epoch, device managers of one simulation started (or restarted) at
+// different times run on the same simulated time. Stops on SIGINT/SIGTERM.
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <iostream>
+#include <memory>
+#include <mutex>
 #include <set>
 #include <thread>
 
 #include "icars/device/simulated_house.h"
+#include "security_options.h"
 
 namespace {
 
@@ -38,6 +49,7 @@ int main(int argc, char** argv) {
   bool engines = true;
   bool simulator = true;
   std::string pun;
+  std::string effects_file;
   app.add_option("--house", house_file, "house file (docs/house.md)")->required()->check(CLI::ExistingFile);
   app.add_option("--server", server, "the mediating server, host:port");
   app.add_option("--speedup", speedup, "simulated seconds per wall-clock second")->check(CLI::PositiveNumber);
@@ -45,6 +57,19 @@ int main(int argc, char** argv) {
   app.add_flag("!--no-engines", engines, "do not host the speech and vision engines");
   app.add_flag("!--no-simulator", simulator, "do not host the Simulation control device");
   app.add_option("--pun", pun, "this endpoint's PLANET name");
+  app.add_option("--effects", effects_file, "write what the devices executed to this file (JSON lines)");
+  std::int64_t epoch_ms = 0;
+  app.add_option("--epoch", epoch_ms,
+                 "wall-clock time (ms since 1970, UTC) at which the simulation is at the house's start: "
+                 "before it the clock holds, after it a (re)started manager first runs its house forward "
+                 "to the simulated time of now, in step with the other managers given the same epoch")
+      ->check(CLI::PositiveNumber);
+  icars::planet::TlsOptions tls;
+  std::string token_file;
+  icars::app::add_tls_options(app, tls, icars::app::Side::client);
+  app.add_option("--token-file", token_file,
+                 "file holding this device manager's token (docs/security.md)")
+      ->check(CLI::ExistingFile);
   CLI11_PARSE(app, argc, argv);
 
   sigset_t signals;
@@ -62,12 +87,48 @@ int main(int argc, char** argv) {
   }
   const auto [host, port] = split_endpoint(server);
 
+  // Every line is flushed at once: the file is complete whenever the process stops.
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> effects(nullptr, &std::fclose);
+  if (!effects_file.empty()) {
+    effects.reset(std::fopen(effects_file.c_str(), "w"));
+    if (!effects) {
+      std::cerr << "icars-device-manager: cannot write --effects " << effects_file << "\n";
+      return 2;
+    }
+  }
+  std::mutex effects_mutex;
+
   icars::device::SimulatedHouseOptions options;
   options.speedup = speedup;
   options.devices = std::set<std::string>(only.begin(), only.end());
   options.engines = engines;
   options.simulator = simulator;
   options.pun = pun;
+  options.tls = tls;
+  if (!token_file.empty()) {
+    try {
+      options.token = icars::app::read_token_file(token_file);
+    } catch (const std::exception& e) {
+      std::cerr << "icars-device-manager: " << e.what() << "\n";
+      return 2;
+    }
+  }
+  if (effects) {
+    options.effects = [&effects, &effects_mutex](const icars::device::DeviceEffect& e) {
+      nlohmann::ordered_json j;
+      j["t"] = e.time.count();
+      j["time"] = icars::sim::format_time(e.time);
+      j["kind"] = "effect";
+      j["device"] = e.device;
+      j["what"] = e.what;
+      j["value"] = e.value;
+      j["request"] = e.request_id;
+      const auto line = j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+      std::lock_guard lock(effects_mutex);
+      std::fputs(line.c_str(), effects.get());
+      std::fflush(effects.get());
+    };
+  }
   std::unique_ptr<icars::device::SimulatedHouse> simulation;
   try {
     simulation = std::make_unique<icars::device::SimulatedHouse>(std::move(house), options);
@@ -76,6 +137,22 @@ int main(int argc, char** argv) {
     return 2;
   }
   auto& manager = simulation->manager();
+  if (epoch_ms > 0) {
+    // The simulated time the wall clock stands for: house start + (now - epoch) * speedup.
+    const auto start = simulation->clock().now();
+    const auto simulated_now = [&] {
+      const auto wall = std::chrono::duration_cast<std::chrono::milliseconds>(
+          std::chrono::system_clock::now().time_since_epoch());
+      return start + icars::sim::SimTime(static_cast<std::int64_t>(static_cast<double>(wall.count() - epoch_ms) * speedup));
+    };
+    while (simulated_now() < start) {
+      const timespec wait{0, 10'000'000};
+      if (sigtimedwait(&signals, nullptr, &wait) > 0) return 0;
+    }
+    // Twice: the second advance covers the simulated time that passed during the first.
+    simulation->clock().advance_to(simulated_now());
+    simulation->clock().advance_to(simulated_now());
+  }
   simulation->start(host, port);
   std::cout << "STARTED " << manager.devices().size() << " devices, simulated time "
             << icars::sim::format_time(simulation->clock().now()) << std::endl;
@@ -84,10 +161,18 @@ int main(int argc, char** argv) {
   std::atomic<bool> stopping{false};
   std::thread reporter([&] {
     std::uint64_t reported = 0;
+    std::string link_error;
     while (!stopping) {
       if (manager.wait_registered(reported + 1, std::chrono::milliseconds(200))) {
         reported = manager.registration_rounds();
         std::cout << "REGISTERED " << reported << ' ' << manager.devices().size() << std::endl;
+      }
+      // Why the link to the server is down (denied, TLS failure, unreachable), once per change.
+      if (const auto& peer = manager.peer(); peer && !peer->is_connected()) {
+        if (auto error = peer->last_error(); !error.empty() && error != link_error) {
+          link_error = std::move(error);
+          std::cout << "LINK DOWN " << link_error << std::endl;
+        }
       }
     }
   });

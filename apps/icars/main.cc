@@ -1,6 +1,6 @@
 // icars: the mediating server of a smart home (ICARS paper 3, Figs. 14 and 16b).
 //
-//   icars run POLICY --world HOUSE [--speed N] [--until HH:MM] [--trace FILE] [--plot FILE.svg]
+//   icars run POLICY --world HOUSE [--speed N] [--until HH:MM] [--days N] [--trace FILE] [--plot FILE.svg]
 //       runs a collaboration policy on a house: the Service Framework, the behaviors and the
 //       Coordinator, with the house's device managers embedded in the same process (simulated
 //       devices over loopback PLANET) or, with --external, connecting from elsewhere
@@ -9,6 +9,9 @@
 //       checks policies without running them; exit code 1 if any has errors.
 //   icars behaviors
 //       lists the behavior types a policy can use, with their parameters.
+//   icars token NAME [--may-call PATTERN...]
+//       makes a token for a device manager or agent: prints the token (for its --token-file) and
+//       the entry to add to the server's --access file (docs/security.md).
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
@@ -16,6 +19,7 @@
 #include "icars/behavior/house_behaviors.h"
 #include "icars/control/collaboration.h"
 #include "mediator.h"
+#include "security_options.h"
 
 namespace b = icars::behavior;
 namespace c = icars::control;
@@ -77,12 +81,20 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--speed", run.speed, "simulated seconds per wall-clock second")
       ->check(CLI::Range(1.0, 100000.0));
   run_cmd->add_option("--until", run.until, "stop at this simulated time of day (HH:MM)");
+  run_cmd->add_option("--days", run.days,
+                      "run this many simulated days: stop at the N-th --until after the house's start "
+                      "(the users' daily schedule repeats)")
+      ->check(CLI::Range(1, 3650));
   run_cmd->add_option("--trace", run.trace_file, "write a JSON-lines trace to this file");
   run_cmd->add_option("--plot", run.plot_file, "draw the house and the run to this SVG file");
   run_cmd->add_option("--listen", run.listen, "where device managers connect, host:port");
   run_cmd->add_flag("--external", run.external, "device managers run as separate processes");
   run_cmd->add_flag("--quiet", run.quiet, "print only the summary");
   run_cmd->add_option("--policies", run.policy_dir, "the policy repository directory");
+  icars::app::add_tls_options(*run_cmd, run.tls, icars::app::Side::server);
+  run_cmd->add_option("--access", run.access_file,
+                      "access file: who may connect and what each may call (docs/security.md)")
+      ->check(CLI::ExistingFile);
 
   std::vector<std::string> to_validate;
   std::string policy_dir = "examples/smart_home";
@@ -92,8 +104,30 @@ int main(int argc, char** argv) {
 
   auto* behaviors_cmd = app.add_subcommand("behaviors", "list the behavior types policies can use");
 
+  std::string token_name;
+  std::vector<std::string> token_paths;
+  auto* token_cmd = app.add_subcommand(
+      "token", "make a token for a device manager or agent: prints it and its access-file entry");
+  token_cmd->add_option("name", token_name, "the principal's name")->required();
+  token_cmd->add_option("--may-call", token_paths,
+                        "servant path patterns it may call (default: what a device manager needs)");
+
   CLI11_PARSE(app, argc, argv);
   if (*validate_cmd) return validate(to_validate, policy_dir);
+  if (*token_cmd) {
+    if (token_paths.empty()) token_paths = icars::app::device_manager_paths();
+    icars::planet::Principal principal{token_name, "", "", token_paths};
+    const std::string token = icars::planet::random_token();
+    principal.token_sha256 = icars::planet::sha256_hex(token);
+    try {
+      icars::planet::AccessPolicy().add(principal);  // checks the name and the patterns
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "icars token: %s\n", e.what());
+      return 2;
+    }
+    std::printf("%s\n%s\n", token.c_str(), icars::app::access_entry(principal).c_str());
+    return 0;
+  }
   if (*behaviors_cmd) {
     list_behaviors();
     return 0;

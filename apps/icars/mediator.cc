@@ -5,6 +5,9 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <atomic>
+#include <mutex>
 #include <csignal>
 #include <cmath>
 #include <cstdio>
@@ -134,86 +137,119 @@ class ServiceObserver {
   std::atomic<int> heard_{0};
 };
 
+// The mediator's record of the commands it sends to devices: every call of an operation that
+// changes a device, traced as "command" records when sent and when acknowledged (a reply came)
+// or failed (the error), with the PLANET request id that the device side logs with what it
+// executed (the effects of --effects / the embedded house), so the two can be matched.
+class CommandRecorder final : public p::CallObserver {
+ public:
+  explicit CommandRecorder(b::Trace& trace) : trace_(trace) {}
+  // Records are stamped with `clock`'s time (0 while null); once this returns, the previous
+  // clock is no longer read.
+  void set_clock(const sim::SimClock* clock) {
+    std::lock_guard lock(mutex_);
+    clock_ = clock;
+  }
+
+  void sent(std::uint32_t request_id, const std::string& path, std::string_view method) override {
+    if (!is_command(method)) return;
+    add(request_id, path, method, "sent", {});
+  }
+  void ended(std::uint32_t request_id, const std::string& path, std::string_view method,
+             const std::exception_ptr& error) override {
+    if (!is_command(method)) return;
+    add(request_id, path, method, error ? "failed" : "acknowledged", error ? describe(error) : "");
+  }
+
+ private:
+  static std::string describe(const std::exception_ptr& error) {
+    try {
+      std::rethrow_exception(error);
+    } catch (const std::exception& e) {
+      return e.what();
+    } catch (...) {
+      return "unknown error";
+    }
+  }
+  // The operations of idl/home.idl that change a device (each one the devices report as an
+  // effect); the others only read a state or subscribe.
+  static bool is_command(std::string_view method) {
+    static constexpr std::string_view kCommands[] = {"set_power", "set_channel", "set_volume", "set_intensity",
+                                                     "play", "stop", "speak", "go_to", "go_to_waypoint", "turn_to"};
+    return std::find(std::begin(kCommands), std::end(kCommands), method) != std::end(kCommands);
+  }
+  void add(std::uint32_t request_id, const std::string& path, std::string_view method, const char* event,
+           const std::string& error) {
+    // The path of a device capability is /devices/<device>/<capability>.
+    std::string device = path, capability;
+    if (path.starts_with("/devices/")) {
+      device = path.substr(9);
+      if (const auto slash = device.find('/'); slash != std::string::npos) {
+        capability = device.substr(slash + 1);
+        device.resize(slash);
+      }
+    }
+    std::lock_guard lock(mutex_);
+    auto r = record(clock_ ? clock_->now() : sim::SimTime(0), "command", device,
+                    fmt::format("command {} {}: {}.{}.{}{}", request_id, event, device, capability, method,
+                                error.empty() ? std::string() : fmt::format(" ({})", error)));
+    r.with("event", std::string(event)).with("request", static_cast<double>(request_id)).with("device", device)
+        .with("capability", capability).with("method", std::string(method));
+    if (!error.empty()) r.with("error", error);
+    trace_.record(std::move(r));
+  }
+
+  b::Trace& trace_;
+  std::mutex mutex_;
+  const sim::SimClock* clock_ = nullptr;
+};
+
 // --- The summary ----------------------------------------------------------------------------
 
-struct Summary {
-  std::vector<b::TraceRecord> records;
+// What the summary and the plot are made of, gathered record by record as the run goes (a trace
+// sink) so that a run of any length keeps a bounded amount: counts, time per state, the first
+// failures, the last effect per device. Only a run that draws a plot keeps its positions and
+// transitions (the plot shows every one).
+class Summary {
+ public:
+  explicit Summary(bool keep_plot) : keep_plot_(keep_plot) {}
+  // The sink reads nothing but the record; it is called under the trace's lock.
+  b::Trace::Sink sink() {
+    return [this](const b::TraceRecord& r) { add(r); };
+  }
 
   void print(const std::string& policy, sim::SimTime from, sim::SimTime to, double wall_seconds, double speed) const {
+    std::lock_guard lock(mutex_);
     std::printf("\n=== summary: policy %s, %s to %s (%.0f min simulated in %.1f s, %.0fx) ===\n", policy.c_str(),
                 sim::format_time(from).c_str(), sim::format_time(to).c_str(),
                 static_cast<double>((to - from).count()) / 60000.0, wall_seconds, speed);
-    // States: how often entered and for how long.
-    std::map<std::string, std::pair<int, sim::SimTime>> states;
-    std::map<std::string, sim::SimTime> entered;
-    std::vector<std::string> order;
-    int transitions = 0;
-    for (const auto& r : records) {
-      if (r.kind == "transition") ++transitions;
-      if (r.kind != "state") continue;
-      const auto name = r.field("state");
-      if (!states.contains(name)) order.push_back(name);
-      if (r.field("event") == "enter") {
-        ++states[name].first;
-        entered[name] = r.time;
-      } else if (entered.contains(name)) {
-        states[name].second += r.time - entered[name];
-        entered.erase(name);
-      }
-    }
-    for (const auto& [name, since] : entered) states[name].second += to - since;
-    std::printf("states (%d transitions):\n", transitions);
-    for (const auto& name : order) {
+    // States: how often entered and for how long (a state still active counts up to `to`).
+    auto states = states_;
+    for (const auto& [name, since] : entered_) states[name].second += to - since;
+    std::printf("states (%d transitions):\n", transitions_);
+    for (const auto& name : order_) {
       std::printf("  %-14s entered %2d times, %6.1f min\n", name.c_str(), states[name].first,
                   static_cast<double>(states[name].second.count()) / 60000.0);
     }
-    // Behaviors.
-    int started = 0, succeeded = 0, failed = 0, halted = 0, calls = 0, failed_calls = 0, effects = 0, heard = 0;
-    std::vector<std::string> failures;
-    std::map<std::string, std::string> device_state;
-    double driven = 0;
-    std::map<std::string, std::pair<double, double>> last_pose;
-    for (const auto& r : records) {
-      if (r.kind == "behavior") {
-        const auto e = r.field("event");
-        started += e == "start";
-        succeeded += e == "success";
-        halted += e == "halt";
-        if (e == "failure") {
-          ++failed;
-          if (failures.size() < 5) failures.push_back(fmt::format("[{}] {}", sim::format_time(r.time), r.text));
-        }
-      } else if (r.kind == "call") {
-        if (r.field("ok") == "false") ++failed_calls;
-        else ++calls;
-      } else if (r.kind == "effect") {
-        ++effects;
-        auto& state = device_state[r.field("device")];
-        state = r.field("what") + (r.field("value").empty() ? "" : " " + r.field("value"));
-      } else if (r.kind == "speech") {
-        ++heard;
-      } else if (r.kind == "robot") {
-        const double x = std::stod(r.field("x")), y = std::stod(r.field("y"));
-        const auto robot = r.field("robot");
-        if (last_pose.contains(robot)) driven += std::hypot(x - last_pose[robot].first, y - last_pose[robot].second);
-        last_pose[robot] = {x, y};
-      }
-    }
-    std::printf("behaviors: %d started, %d succeeded, %d failed, %d halted\n", started, succeeded, failed, halted);
-    for (const auto& f : failures) std::printf("  %s\n", f.c_str());
-    std::printf("service calls: %d (%d failed); voice commands heard: %d\n", calls, failed_calls, heard);
-    std::printf("device effects: %d; last effect per device:\n", effects);
-    for (const auto& [device, state] : device_state) std::printf("  %-16s %s\n", device.c_str(), state.c_str());
-    std::printf("robot distance driven: %.1f m\n", driven);
+    std::printf("behaviors: %d started, %d succeeded, %d failed, %d halted\n", started_, succeeded_, failed_, halted_);
+    for (const auto& f : failures_) std::printf("  %s\n", f.c_str());
+    std::printf("service calls: %d (%d failed); voice commands heard: %d\n", calls_, failed_calls_, heard_);
+    std::printf("device commands: %d sent, %d acknowledged, %d failed\n", commands_sent_, commands_acknowledged_,
+                commands_failed_);
+    std::printf("device effects: %d; last effect per device:\n", effects_);
+    for (const auto& [device, state] : device_state_) std::printf("  %-16s %s\n", device.c_str(), state.c_str());
+    std::printf("robot distance driven: %.1f m\n", driven_);
   }
 
+  // Needs keep_plot.
   sim::PlotData plot(const std::string& title, const sim::House& house) const {
+    std::lock_guard lock(mutex_);
     sim::PlotData data;
     data.title = title;
     std::map<std::string, sim::PlotTrack> robots, users;
     std::pair<double, double> robot_at{0, 0};
     if (!house.robots.empty()) robot_at = {house.robots.front().start.x, house.robots.front().start.y};
-    for (const auto& r : records) {
+    for (const auto& r : plotted_) {
       if (r.kind == "robot" || r.kind == "user") {
         const auto who = r.kind == "robot" ? r.field("robot") : r.field("user");
         auto& track = (r.kind == "robot" ? robots : users)[who];
@@ -233,6 +269,65 @@ struct Summary {
     for (auto& [name, track] : users) data.users.push_back(std::move(track));
     return data;
   }
+
+ private:
+  void add(const b::TraceRecord& r) {
+    std::lock_guard lock(mutex_);
+    if (keep_plot_ && (r.kind == "robot" || r.kind == "user" || r.kind == "transition")) plotted_.push_back(r);
+    if (r.kind == "transition") {
+      ++transitions_;
+    } else if (r.kind == "state") {
+      const auto name = r.field("state");
+      if (!states_.contains(name)) order_.push_back(name);
+      if (r.field("event") == "enter") {
+        ++states_[name].first;
+        entered_[name] = r.time;
+      } else if (entered_.contains(name)) {
+        states_[name].second += r.time - entered_[name];
+        entered_.erase(name);
+      }
+    } else if (r.kind == "behavior") {
+      const auto e = r.field("event");
+      started_ += e == "start";
+      succeeded_ += e == "success";
+      halted_ += e == "halt";
+      if (e == "failure") {
+        ++failed_;
+        if (failures_.size() < 5) failures_.push_back(fmt::format("[{}] {}", sim::format_time(r.time), r.text));
+      }
+    } else if (r.kind == "call") {
+      if (r.field("ok") == "false") ++failed_calls_;
+      else ++calls_;
+    } else if (r.kind == "command") {
+      const auto e = r.field("event");
+      commands_sent_ += e == "sent";
+      commands_acknowledged_ += e == "acknowledged";
+      commands_failed_ += e == "failed";
+    } else if (r.kind == "effect") {
+      ++effects_;
+      device_state_[r.field("device")] = r.field("what") + (r.field("value").empty() ? "" : " " + r.field("value"));
+    } else if (r.kind == "speech") {
+      ++heard_;
+    } else if (r.kind == "robot") {
+      const double x = std::stod(r.field("x")), y = std::stod(r.field("y"));
+      const auto robot = r.field("robot");
+      if (last_pose_.contains(robot)) driven_ += std::hypot(x - last_pose_[robot].first, y - last_pose_[robot].second);
+      last_pose_[robot] = {x, y};
+    }
+  }
+
+  const bool keep_plot_;
+  mutable std::mutex mutex_;
+  std::map<std::string, std::pair<int, sim::SimTime>> states_;  // times entered, time spent
+  std::map<std::string, sim::SimTime> entered_;                 // active states: since when
+  std::vector<std::string> order_;
+  int transitions_ = 0, started_ = 0, succeeded_ = 0, failed_ = 0, halted_ = 0, calls_ = 0, failed_calls_ = 0;
+  int commands_sent_ = 0, commands_acknowledged_ = 0, commands_failed_ = 0, effects_ = 0, heard_ = 0;
+  std::vector<std::string> failures_;  // the first five
+  std::map<std::string, std::string> device_state_;
+  double driven_ = 0;
+  std::map<std::string, std::pair<double, double>> last_pose_;
+  std::vector<b::TraceRecord> plotted_;
 };
 
 }  // namespace
@@ -275,6 +370,7 @@ int run(const RunOptions& options) {
   const auto day = sim::kDay * (start / sim::kDay);
   auto stop_at = day + *until;
   if (stop_at <= start) stop_at += sim::kDay;
+  stop_at += sim::kDay * (options.days - 1);  // the house's daily schedule repeats
   std::string host;
   std::uint16_t port = 0;
   try {
@@ -286,9 +382,10 @@ int run(const RunOptions& options) {
 
   // --- The trace: timeline, JSON lines, and what the summary and plot are made from. ---------
   b::Trace trace;
-  b::TraceLog log;
-  trace.add_sink(log.sink());
-  if (!options.quiet) trace.add_sink(b::timeline_printer(stdout));
+  Summary summary(!options.plot_file.empty());
+  trace.add_sink(summary.sink());
+  // The timeline leaves out positions and the command record (the "call" lines say it).
+  if (!options.quiet) trace.add_sink(b::timeline_printer(stdout, {"robot", "user", "command"}));
   if (!options.trace_file.empty()) {
     try {
       trace.add_sink(b::json_lines_writer(options.trace_file));
@@ -302,8 +399,32 @@ int run(const RunOptions& options) {
   p::CommunicatorOptions server_options;
   server_options.name = "icars";
   server_options.logger = spdlog::default_logger();
-  p::Communicator server(server_options);
+  server_options.tls = options.tls;
+  // The embedded house authenticates with a token made for this run.
+  const std::string house_token = options.access_file.empty() ? "" : p::random_token();
+  if (!options.access_file.empty()) {
+    try {
+      auto access = std::make_shared<p::AccessPolicy>(p::AccessPolicy::load(options.access_file));
+      if (!options.external) {
+        access->add({"house-devices", p::sha256_hex(house_token), "", {std::string(device::kRegistryPath)}});
+      }
+      server_options.access = std::move(access);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "icars: %s\n", e.what());
+      return 2;
+    }
+  }
+  std::unique_ptr<p::Communicator> server_endpoint;
+  try {
+    server_endpoint = std::make_unique<p::Communicator>(server_options);
+  } catch (const std::exception& e) {  // unreadable TLS files, a key that does not match
+    std::fprintf(stderr, "icars: %s\n", e.what());
+    return 2;
+  }
+  p::Communicator& server = *server_endpoint;
   s::ServiceFramework sf(server);
+  auto commands = std::make_shared<CommandRecorder>(trace);
+  sf.registry().set_call_observer(commands);
   std::uint16_t bound = 0;
   try {
     bound = server.listen(host, port);
@@ -323,10 +444,13 @@ int run(const RunOptions& options) {
     device::SimulatedHouseOptions house_options;
     house_options.speedup = options.speed;
     house_options.pun = "house-devices";
+    house_options.tls = options.tls;
+    house_options.token = house_token;
     house_options.logger = spdlog::default_logger();
     house_options.effects = [&trace](const device::DeviceEffect& e) {
       auto r = record(e.time, "effect", e.device, fmt::format("{}: {}{}", e.device, e.what, e.value.empty() ? "" : " " + e.value));
-      r.with("device", e.device).with("what", e.what).with("value", e.value);
+      r.with("device", e.device).with("what", e.what).with("value", e.value)
+          .with("request", static_cast<double>(e.request_id));
       trace.record(std::move(r));
     };
     home = std::make_unique<device::SimulatedHouse>(house, house_options);
@@ -359,6 +483,11 @@ int run(const RunOptions& options) {
     clock = own_clock.get();
     std::printf("[icars] waiting for device managers (icars-device-manager --server %s:%u)\n", host.c_str(), bound);
   }
+  commands->set_clock(clock);
+  struct ClockRelease {  // the clock goes before the server, whose io thread may still end calls
+    CommandRecorder& commands;
+    ~ClockRelease() { commands.set_clock(nullptr); }
+  } release_clock{*commands};
   std::unique_ptr<ClockFollower> follower;
   if (own_clock) follower = std::make_unique<ClockFollower>(*own_clock, sf.container());
   ServiceObserver observer(sf.container(), trace, options.external);
@@ -399,7 +528,6 @@ int run(const RunOptions& options) {
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
-  Summary summary{log.records()};
   summary.print(policy_name, started_at, ended_at, wall, options.speed);
   if (interrupted) std::printf("(interrupted)\n");
   if (!options.plot_file.empty()) {

@@ -4,6 +4,8 @@
 #include <optional>
 #include <string>
 
+#include "icars/planet/security.h"
+
 namespace icars::app {
 
 struct RunOptions {
@@ -12,11 +14,14 @@ struct RunOptions {
   std::string world;           // the house file
   double speed = 1500;         // simulated seconds per wall-clock second
   std::string until = "07:30"; // stop at this time of day (the next one after the house's start)
+  int days = 1;                // ... or the days-th one: run that many simulated days
   std::string trace_file;      // JSON lines
   std::string plot_file;       // SVG
   std::string listen = "127.0.0.1:0";
   bool external = false;       // device managers run elsewhere (icars-device-manager)
   bool quiet = false;          // no timeline on stdout, only the summary
+  planet::TlsOptions tls;      // TLS of the listener (docs/security.md)
+  std::string access_file;     // who may connect and call what; empty: anyone (loopback only)
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

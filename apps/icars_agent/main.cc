@@ -5,8 +5,10 @@
 //   icars-agent monitor.json            a monitor: prints the neighbourhood and task tables
 //
 // Events go to stdout as JSON lines ({"event":"awarded",...}), for scripts and the scenario
-// command; the monitor's tables go to stderr. SIGINT/SIGTERM stop the agent cleanly; a user
-// with exit_when_done stops after its last delivery.
+// command; the monitor's tables go to stderr, as do warnings (datagrams dropped for failing
+// authentication, an insecure agent). The configuration must hold the fleet key ('key_file' or
+// 'key') or say 'insecure'. SIGINT/SIGTERM stop the agent cleanly; a user with exit_when_done
+// stops after its last delivery.
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
@@ -120,7 +122,7 @@ int run(const std::string& config_file, int monitor_ms) {
       last_table = now;
       const std::string table = agent.call([&] {
         return render_neighbors(agent.neighbors(), Clock::now()) + "\n" +
-               render_tasks(agent.tasks());
+               render_tasks(agent.tasks()) + "\n" + render_datagram_stats(agent.stats());
       });
       std::lock_guard lock(out_mutex);
       std::cerr << "\n" << table << std::flush;

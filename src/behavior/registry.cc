@@ -35,7 +35,7 @@ Params BehaviorRegistry::check(std::string_view type,
   Params params;
   for (const auto& [name, value] : given) {
     const auto spec = std::find_if(entry->params.begin(), entry->params.end(),
-                                   [&](const ParamSpec& s) { return s.name == name; });
+                                   [&name = name](const ParamSpec& s) { return s.name == name; });
     if (spec == entry->params.end()) {
       std::vector<std::string> known;
       for (const auto& s : entry->params) known.push_back(s.name);

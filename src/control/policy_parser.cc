@@ -28,6 +28,10 @@ std::string Diagnostic::to_string() const {
 
 namespace {
 
+// Behavior trees and statecharts are read recursively; deeper nesting is reported as an error
+// instead of overflowing the stack (a file 50,000 <sequential> deep did).
+constexpr int kMaxNesting = 64;
+
 std::string join_messages(const std::vector<Diagnostic>& diagnostics) {
   std::string out;
   for (const auto& d : diagnostics) {
@@ -101,6 +105,19 @@ class Parser {
   }
 
  private:
+  // One level of a recursively read tree; too_deep() beyond kMaxNesting.
+  class Nesting {
+   public:
+    explicit Nesting(int& depth) : depth_(depth) { ++depth_; }
+    ~Nesting() { --depth_; }
+    Nesting(const Nesting&) = delete;
+    Nesting& operator=(const Nesting&) = delete;
+    bool too_deep() const { return depth_ > kMaxNesting; }
+
+   private:
+    int& depth_;
+  };
+
   // --- Diagnostics ----------------------------------------------------------------------------
   // Line numbers come from the offsets of the newlines, found once: counting them from the start
   // for every node made parsing quadratic in the file's size.
@@ -186,6 +203,12 @@ class Parser {
   NodeSpec parse_node(const pugi::xml_node& node) {
     NodeSpec spec;
     spec.line = line(node);
+    const Nesting nesting(nesting_);
+    if (nesting.too_deep()) {
+      error(spec.line, fmt::format("behaviors nested more than {} levels deep (expected a flatter "
+                                   "tree: move a subtree into a task of its own)", kMaxNesting));
+      return spec;
+    }
     spec.name = node.attribute("name").as_string();
     const std::string_view kind = node.name();
     if (kind == "behavior") {
@@ -301,6 +324,12 @@ class Parser {
   StateSpec parse_state(const pugi::xml_node& node, bool is_chart) {
     StateSpec state;
     state.line = line(node);
+    const Nesting nesting(nesting_);
+    if (nesting.too_deep()) {
+      error(state.line, fmt::format("states nested more than {} levels deep (expected a flatter "
+                                    "statechart)", kMaxNesting));
+      return state;
+    }
     if (is_chart) {
       check_attributes(node, {"initial"});
     } else {
@@ -405,6 +434,7 @@ class Parser {
   std::string file_;
   const b::BehaviorRegistry& registry_;
   std::vector<Diagnostic> errors_;
+  int nesting_ = 0;  // of the behavior tree or state being read
   std::vector<Diagnostic> warnings_;
 };
 

@@ -63,7 +63,8 @@ void Agent::start() {
     emit({{"event", "started"},
           {"role", config_.role},
           {"ip", self.address().to_string()},
-          {"port", self.port()}});
+          {"port", self.port()},
+          {"authentication", transport_->authenticated() ? "hmac-sha256" : "none"}});
     for (const auto& op : operators_) op->init(*this);
   });
   thread_ = std::thread([this] {
@@ -81,7 +82,15 @@ void Agent::stop() {
       for (const auto& weak : timers_) {
         if (auto t = weak.lock()) t->cancel();
       }
-      emit({{"event", "stopped"}});
+      const TransportStats s = transport_->stats();
+      emit({{"event", "stopped"},
+            {"datagrams",
+             {{"sent", s.sent},
+              {"received", s.received},
+              {"malformed", s.malformed},
+              {"rejected_unsigned", s.rejected_unsigned},
+              {"rejected_bad_tag", s.rejected_bad_tag},
+              {"rejected_replayed", s.rejected_replayed}}}});
       transport_->close();
       io_.stop();
     });

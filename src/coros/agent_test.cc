@@ -69,6 +69,7 @@ class Fleet : public ::testing::Test {
     c.transport.broadcast_port = port_;
     c.transport.faults = faults_;
     c.transport.faults.seed = seed_++;
+    c.transport.key = key_;
     c.hello_period = 50ms;
     // Generous bounds for sanitizer builds on a loaded machine: auctions close as soon as
     // every known robot has bid, so a long window costs nothing unless a bid is lost.
@@ -125,6 +126,7 @@ class Fleet : public ::testing::Test {
   std::uint16_t port_ = free_udp_port();
   FaultInjection faults_;
   std::uint64_t seed_ = 1;
+  FleetKey key_ = FleetKey::generate();
   std::shared_ptr<const MapPlanner> map_ = MapPlanner::load(kMap, 0.25);
   EventLog log_;
   std::vector<std::unique_ptr<Agent>> agents_;
@@ -163,25 +165,31 @@ TEST_F(Fleet, GarbageDatagramsAreCountedAndIgnored) {
   asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
   s.set_option(asio::socket_base::broadcast(true));
   const auto to = a.call([&] { return a.transport().local_endpoint(); });
-  const std::vector<std::vector<std::byte>> junk = {
-      {},
-      {std::byte{'G'}, std::byte{'E'}, std::byte{'T'}},
-      encode_header(MessageCode::hello, "intruder"),  // no body
-      [] {                                            // a HELLO code with a BID body
-        auto d = encode_datagram("intruder", BidMessage{"t", 1, "intruder", 1});
-        const auto h = encode_header(MessageCode::hello, "intruder");
-        std::copy(h.begin(), h.end(), d.begin());
-        return d;
-      }(),
-      [] {  // a HELLO naming someone else
-        return encode_datagram("intruder",
-                               HelloMessage{"agent2", "127.0.0.1", 1, "robot", "idle", 1, 0, 0, 0});
-      }(),
+  // The last two are well-formed datagrams that handlers reject. They are signed with the
+  // fleet's key (by a misbehaving key holder), or authentication would drop them first.
+  DatagramSigner key_holder(key_);
+  const std::vector<std::pair<std::vector<std::byte>, bool>> junk = {
+      {{}, false},
+      {{std::byte{'G'}, std::byte{'E'}, std::byte{'T'}}, false},
+      {encode_header(MessageCode::hello, "intruder"), false},  // no body
+      {[] {                                                    // a HELLO code with a BID body
+         auto d = encode_datagram("intruder", BidMessage{"t", 1, "intruder", 1});
+         const auto h = encode_header(MessageCode::hello, "intruder");
+         std::copy(h.begin(), h.end(), d.begin());
+         return d;
+       }(),
+       true},
+      {encode_datagram("intruder",  // a HELLO naming someone else
+                       HelloMessage{"agent2", "127.0.0.1", 1, "robot", "idle", 1, 0, 0, 0}),
+       true},
   };
-  for (const auto& j : junk) {
-    s.send_to(asio::buffer(j), to);
-    s.send_to(asio::buffer(j),
-              asio::ip::udp::endpoint(asio::ip::make_address("127.255.255.255"), port_));
+  for (const auto& [bytes, sign] : junk) {
+    for (const auto& dest :
+         {to, asio::ip::udp::endpoint(asio::ip::make_address("127.255.255.255"), port_)}) {
+      auto copy = bytes;
+      if (sign) key_holder.sign(copy);  // each copy its own counter: no replay
+      s.send_to(asio::buffer(copy), dest);
+    }
   }
   ASSERT_TRUE(wait_until(
       [&] { return a.call([&] { return a.bad_datagrams(); }) >= 2 * junk.size(); }, 20s));
@@ -319,6 +327,16 @@ TEST_F(Fleet, LossyNetworkStillAssignsAndDeliversEachTaskOnce) {
   EXPECT_GT(dropped, 10u);
   EXPECT_GT(duplicated, 10u);
   EXPECT_GT(delayed, 10u);
+  // Duplicates are identical signed bytes: receivers drop the second copy as a replay, while
+  // delayed (reordered) datagrams are still accepted within the replay window.
+  std::uint64_t replayed = 0, forged = 0;
+  for (auto& a : agents_) {
+    const auto s = a->stats();
+    replayed += s.rejected_replayed;
+    forged += s.rejected_unsigned + s.rejected_bad_tag;
+  }
+  EXPECT_GT(replayed, 0u);
+  EXPECT_EQ(forged, 0u);
 }
 
 }  // namespace

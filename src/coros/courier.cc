@@ -340,7 +340,7 @@ void CourierUserOperator::start_configured_deliveries() {
     for (std::size_t i = 0; i < c.deliveries.size(); ++i) {
       const auto [pickup, dropoff] = c.deliveries[i];
       const auto delay = c.delivery_interval * static_cast<std::int64_t>(i);
-      auto go = [this, pickup, dropoff] {
+      auto go = [this, pickup = pickup, dropoff = dropoff] {
         try {
           request(pickup, dropoff);
         } catch (const CorosError& e) {

@@ -125,7 +125,7 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   in.only(root, "the configuration",
           {"id", "role", "ip", "port", "broadcast", "hello_period_ms", "neighbor_expiry_ms",
            "bid_window_ms", "retry_period_ms", "max_retries", "map", "robot", "track_file", "user",
-           "faults"});
+           "faults", "key", "key_file", "insecure"});
   AgentConfiguration c;
   c.id = in.string(root, "id", "");
   if (c.id.empty() || c.id.size() > 255)
@@ -198,6 +198,35 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   }
   if (c.role == "robot" && c.map.empty()) in.fail("a robot needs a 'map'");
   if (c.role == "user" && c.map.empty()) in.fail("a user needs a 'map' to place deliveries");
+  // The fleet key, or an explicit 'insecure'. The key is read now, so an unusable key file is a
+  // configuration error naming the file.
+  const std::string key_hex = in.string(root, "key", "");
+  const std::string key_file = in.string(root, "key_file", "");
+  c.transport.insecure = in.boolean(root, "insecure", false);
+  if (!key_hex.empty() && !key_file.empty()) in.fail("set 'key' or 'key_file', not both");
+  if (c.transport.insecure && (!key_hex.empty() || !key_file.empty())) {
+    in.fail("'insecure' is true but a fleet key is set too: remove one of them");
+  }
+  try {
+    if (!key_hex.empty()) c.transport.key = FleetKey::from_hex(key_hex);
+  } catch (const CorosError& e) {
+    in.fail(fmt::format("'key': {}", e.what()));
+  }
+  if (!key_file.empty()) {
+    const std::filesystem::path p(key_file);
+    try {
+      c.transport.key = FleetKey::load(p.is_absolute() ? p : base_dir / p);
+    } catch (const CorosError& e) {
+      in.fail(fmt::format("'key_file': {}", e.what()));
+    }
+  }
+  if (!c.transport.key && !c.transport.insecure) {
+    in.fail(
+        "no fleet key: set 'key_file' to a file holding the fleet's shared key as hex (make it "
+        "once with `openssl rand -hex 32 > fleet.key; chmod 600 fleet.key` and give every agent "
+        "of the fleet the same file), or 'key' to the hex itself, or 'insecure': true to run "
+        "without message authentication");
+  }
   return c;
 }
 

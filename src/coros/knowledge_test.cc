@@ -87,7 +87,8 @@ TEST(CorosConfiguration, ReadsEverySetting) {
     "retry_period_ms": 50, "max_retries": 7, "map": "office.xml",
     "user": {"deliveries": [["a", "b"], ["c", "d"]], "expect_robots": 5, "start_after_ms": 2000,
              "delivery_interval_ms": 100, "exit_when_done": false},
-    "faults": "drop=0.1,seed=3"})",
+    "faults": "drop=0.1,seed=3",
+    "key": "00112233445566778899aabbccddeeff00112233445566778899AABBCCDDEEFF"})",
                                            "/maps", "user.json");
   EXPECT_EQ(c.id, "user");
   EXPECT_EQ(c.role, "user");
@@ -102,6 +103,10 @@ TEST(CorosConfiguration, ReadsEverySetting) {
   EXPECT_EQ(c.expect_robots, 5);
   EXPECT_FALSE(c.exit_when_done);
   EXPECT_DOUBLE_EQ(c.transport.faults.drop, 0.1);
+  ASSERT_TRUE(c.transport.key);
+  EXPECT_EQ(c.transport.key->to_hex(),
+            "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff");
+  EXPECT_FALSE(c.transport.insecure);
 }
 
 TEST(CorosConfiguration, BrokenFilesSayWhatIsWrong) {

@@ -61,9 +61,9 @@ Datagram decode_datagram(std::span<const std::byte> bytes) {
   try {
     planet::Reader r(bytes.subspan(2));
     const std::uint8_t version = r.u8();
-    if (version != kProtocolVersion) {
-      throw CorosError(fmt::format("unsupported COROS version {} (this agent speaks {})", version,
-                                   kProtocolVersion));
+    if (version != kProtocolVersion && version != kAuthenticatedVersion) {
+      throw CorosError(fmt::format("unsupported COROS version {} (this agent speaks {} and {})",
+                                   version, kProtocolVersion, kAuthenticatedVersion));
     }
     Datagram d;
     d.code = static_cast<MessageCode>(r.u16());
@@ -72,9 +72,21 @@ Datagram decode_datagram(std::span<const std::byte> bytes) {
       throw CorosError(
           fmt::format("sender id of {} bytes (must be 1 to {})", d.sender.size(), kMaxSender));
     }
-    if (r.remaining() == 0) throw CorosError("datagram has no message body");
-    const auto rest = r.rest();
-    d.body.assign(rest.begin(), rest.end());
+    const std::size_t trailer = version == kAuthenticatedVersion ? kAuthTrailerSize : 0;
+    if (r.remaining() <= trailer) {
+      throw CorosError(trailer == 0 ? std::string("datagram has no message body")
+                                    : fmt::format("signed datagram of {} bytes after the header "
+                                                  "has no room for a body and its {}-byte trailer",
+                                                  r.remaining(), trailer));
+    }
+    const auto body = r.raw(r.remaining() - trailer);
+    d.body.assign(body.begin(), body.end());
+    if (trailer != 0) {
+      AuthenticationTrailer t;
+      t.generation = r.u64();
+      t.counter = r.u64();
+      d.authentication = t;  // the tag, the last kAuthTagSize bytes, is left to the verifier
+    }
     return d;
   } catch (const planet::Error& e) {
     throw CorosError(std::string("truncated COROS header: ") + e.what());

@@ -32,4 +32,12 @@ std::string render_tasks(const TaskMonitor& tasks) {
   return out;
 }
 
+std::string render_datagram_stats(const TransportStats& s) {
+  return fmt::format(
+      "datagrams: {} received, {} sent; dropped: {} malformed, {} unsigned, {} bad tag, {} "
+      "replayed\n",
+      s.received, s.sent, s.malformed, s.rejected_unsigned, s.rejected_bad_tag,
+      s.rejected_replayed);
+}
+
 }  // namespace icars::coros

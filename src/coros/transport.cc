@@ -1,14 +1,19 @@
 #include "icars/coros/transport.h"
 
 #include <fmt/format.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include <array>
 #include <asio/ip/address.hpp>
 #include <asio/socket_base.hpp>
 #include <atomic>
 #include <charconv>
+#include <chrono>
+#include <map>
 #include <mutex>
 #include <sstream>
+#include <utility>
 
 namespace icars::coros {
 
@@ -32,6 +37,35 @@ T parse_integer(const std::string& key, const std::string& value) {
     throw CorosError(fmt::format("fault injection: {}={} must be a whole number", key, value));
   }
   return v;
+}
+
+// An id as a log may show it: the sender id is whatever a stranger put there, so control
+// characters and non-ASCII bytes are escaped and it is cut at 64 characters.
+std::string printable(std::string_view text) {
+  std::string out;
+  for (const char c : text.substr(0, 64)) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u >= 0x20 && u < 0x7f && c != '\\') {
+      out.push_back(c);
+    } else {
+      out += fmt::format("\\x{:02x}", u);
+    }
+  }
+  if (text.size() > 64) out += "...";
+  return out;
+}
+
+std::string_view explain(Rejection why) {
+  switch (why) {
+    case Rejection::unsigned_datagram:
+      return "it is unsigned (its sender has no fleet key, or runs with 'insecure')";
+    case Rejection::bad_tag:
+      return "its authentication tag does not match (another fleet key, or bytes changed on the "
+             "way)";
+    case Rejection::replayed:
+      return "it was replayed (this generation and counter were accepted before, or are too old)";
+  }
+  return "it failed authentication";
 }
 
 }  // namespace
@@ -73,7 +107,16 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
         unicast(io_context),
         group(io_context),
         rng(options.faults.seed),
-        faults(options.faults) {}
+        faults(options.faults),
+        log(options.logger
+                ? options.logger
+                : std::make_shared<spdlog::logger>(
+                      "coros", std::make_shared<spdlog::sinks::stderr_color_sink_mt>())) {
+    if (options.key) {
+      signer.emplace(*options.key);
+      verifier.emplace(*options.key);
+    }
+  }
 
   asio::io_context& io;
   asio::ip::udp::socket unicast;
@@ -87,6 +130,16 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
   mutable std::mutex stats_mutex;
   TransportStats stats;
   bool closed = false;
+  std::shared_ptr<spdlog::logger> log;
+  std::mutex sign_mutex;                     // send_to() may be called from any thread
+  std::optional<DatagramSigner> signer;      // with a key
+  std::optional<DatagramVerifier> verifier;  // with a key; on the io_context only
+  // Rejection warnings per source address: when the last was logged, how many since.
+  struct Warned {
+    std::chrono::steady_clock::time_point at;
+    std::uint64_t suppressed = 0;
+  };
+  std::map<asio::ip::udp::endpoint, Warned> warned;
 
   struct Receive {
     asio::ip::udp::socket* socket;
@@ -122,8 +175,52 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
       if (on_error) on_error(e.what(), from);
       return;
     }
+    if (verifier) {
+      std::optional<Rejection> why;
+      try {
+        why = verifier->verify(bytes, d);
+      } catch (const CorosError& e) {  // OpenSSL failed: nothing to trust either
+        log->error("cannot check a datagram from {}: {}", describe(from), e.what());
+        why = Rejection::bad_tag;
+      }
+      if (why) {
+        reject(*why, d, from);
+        return;
+      }
+    }
     count(&TransportStats::received);
     if (on_datagram) on_datagram(d, from);
+  }
+
+  static std::string describe(const asio::ip::udp::endpoint& e) {
+    return fmt::format("{}:{}", e.address().to_string(), e.port());
+  }
+
+  // Counts the datagram and warns, at most once a second per source address.
+  void reject(Rejection why, const Datagram& d, const asio::ip::udp::endpoint& from) {
+    count(why == Rejection::unsigned_datagram ? &TransportStats::rejected_unsigned
+          : why == Rejection::bad_tag         ? &TransportStats::rejected_bad_tag
+                                              : &TransportStats::rejected_replayed);
+    const auto now = std::chrono::steady_clock::now();
+    auto it = warned.find(from);
+    if (it != warned.end() && now - it->second.at < std::chrono::seconds(1)) {
+      ++it->second.suppressed;
+      return;
+    }
+    if (it == warned.end()) {
+      if (warned.size() >= 4096) {  // many source addresses: forget those quiet for a second
+        std::erase_if(warned,
+                      [&](const auto& w) { return now - w.second.at >= std::chrono::seconds(1); });
+      }
+      it = warned.emplace(from, Warned{}).first;
+    }
+    const std::uint64_t suppressed = std::exchange(it->second.suppressed, 0);
+    it->second.at = now;
+    log->warn("dropped a {} from {} claiming to be '{}': {}{}", to_string(d.code), describe(from),
+              printable(d.sender), explain(why),
+              suppressed == 0 ? std::string()
+                              : fmt::format(" ({} more dropped from there before this, not logged)",
+                                            suppressed));
   }
 
   void transmit(const asio::ip::udp::endpoint& to,
@@ -170,6 +267,15 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
 
 UdpTransport::UdpTransport(asio::io_context& io, TransportOptions options)
     : impl_(std::make_shared<Impl>(io, options)), options_(std::move(options)) {
+  if (!options_.key && !options_.insecure) {
+    throw CorosError(
+        "no fleet key: an agent signs and checks every datagram with the fleet's shared key; set "
+        "'key_file' (a file holding the key as hex, made once with `openssl rand -hex 32`) or "
+        "'key' in the configuration, or 'insecure': true to run without authentication");
+  }
+  if (options_.key && options_.insecure) {
+    throw CorosError("'insecure' is set together with a fleet key: remove one of them");
+  }
   std::error_code ec;
   const auto ip = asio::ip::make_address(options_.ip, ec);
   if (ec) throw CorosError(fmt::format("agent address '{}' is not an IPv4 address", options_.ip));
@@ -207,6 +313,12 @@ UdpTransport::~UdpTransport() { close(); }
 void UdpTransport::start(Receiver on_datagram, ErrorSink on_error) {
   impl_->on_datagram = std::move(on_datagram);
   impl_->on_error = std::move(on_error);
+  if (options_.insecure) {
+    impl_->log->warn(
+        "INSECURE: agent socket {} runs without a fleet key: datagrams are neither signed nor "
+        "checked, so any host that reaches port {} can forge HELLOs, bids and awards",
+        Impl::describe(impl_->self), options_.broadcast_port);
+  }
   auto unicast = std::make_shared<Impl::Receive>();
   unicast->socket = &impl_->unicast;
   auto group = std::make_shared<Impl::Receive>();
@@ -224,6 +336,10 @@ void UdpTransport::close() {
 }
 
 void UdpTransport::send_to(const asio::ip::udp::endpoint& to, std::vector<std::byte> datagram) {
+  if (impl_->signer) {
+    std::lock_guard lock(impl_->sign_mutex);
+    impl_->signer->sign(datagram);
+  }
   auto bytes = std::make_shared<std::vector<std::byte>>(std::move(datagram));
   asio::post(impl_->io, [impl = impl_, to, bytes] { impl->send(to, bytes); });
 }

@@ -46,7 +46,11 @@ Communicator::Communicator(CommunicatorOptions options)
       manager_(std::make_unique<ConnectionManager>(io_, static_cast<MessageHandler&>(*this), options_.connection, log_)),
       streams_(std::make_unique<detail::StreamTable>(*log_)),
       sweep_timer_(std::make_unique<asio::steady_timer>(*io_)) {
+  if (!options_.token.empty()) manager_->set_token(options_.token);
   if (!options_.pun.empty()) manager_->set_local_pun(options_.pun);
+  manager_->set_tls(options_.tls);
+  if (options_.access) manager_->set_access_policy(options_.access);
+  if (options_.max_pending_calls == 0) throw std::invalid_argument("max_pending_calls must be > 0");
   std::promise<std::thread::id> started;
   auto id = started.get_future();
   io_thread_ = std::thread([this, &started] {
@@ -147,7 +151,17 @@ std::uint32_t Communicator::start_call(const Link& link, std::vector<std::byte> 
   }
   std::uint32_t id = 0;
   {
-    std::lock_guard lock(pending_mutex_);
+    std::unique_lock lock(pending_mutex_);
+    if (pending_.size() >= options_.max_pending_calls) {
+      const std::size_t pending = pending_.size();
+      lock.unlock();
+      done(std::make_exception_ptr(Error(
+               ErrorKind::overloaded,
+               fmt::format("{} calls are awaiting replies (max_pending_calls); retry later",
+                           pending))),
+           nullptr);
+      return 0;
+    }
     do {
       id = next_request_id_++;
     } while (id == 0 || pending_.contains(id));
@@ -250,7 +264,7 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
         std::exception_ptr error;
         if (raw_kind == static_cast<std::uint8_t>(ErrorKind::failed) ||
             raw_kind < static_cast<std::uint8_t>(ErrorKind::failed) ||
-            raw_kind > static_cast<std::uint8_t>(ErrorKind::refused)) {
+            raw_kind > static_cast<std::uint8_t>(ErrorKind::denied)) {
           error = std::make_exception_ptr(std::move(exception));
         } else {
           error = std::make_exception_ptr(Error(static_cast<ErrorKind>(raw_kind),
@@ -303,6 +317,20 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
     log_->warn("malformed request header from {}: {}", c->describe(), e.what());
     if (!oneway) send_error(c, request_id, ErrorKind::bad_data, "planet::BadData", e.message());
     return;
+  }
+  if (options_.access && c->role() == ConnectionRole::server) {
+    // Requests over links this endpoint opened come from the server it chose (and, over TLS,
+    // verified); requests from its own clients need their principal's permission.
+    const auto principal = c->principal();
+    if (!principal || !principal->may_call_path(path)) {
+      const std::string message =
+          fmt::format("{} may not call '{}' (access policy)",
+                      principal ? fmt::format("principal '{}'", principal->name) : c->describe(),
+                      path);
+      log_->warn("denied {} ({}.{})", message, path, method);
+      if (!oneway) send_error(c, request_id, ErrorKind::denied, "planet::Denied", message);
+      return;
+    }
   }
   auto servant = adapter_.find(path);
   if (!servant) {

@@ -7,8 +7,12 @@
 #include <sys/socket.h>
 #include <sys/uio.h>
 
+#include <openssl/ssl.h>
+#include <openssl/x509.h>
+
 #include <algorithm>
 #include <asio/post.hpp>
+#include <asio/ssl.hpp>
 #include <asio/write.hpp>
 #include <cerrno>
 #include <cstring>
@@ -51,6 +55,7 @@ void ConnectionOptions::validate() const {
   if (receive_budget < max_message_size) {
     throw std::invalid_argument("receive_budget must be at least max_message_size");
   }
+  if (max_connections == 0) throw std::invalid_argument("max_connections must be > 0");
   if (max_incomplete_messages < kMaxInterleavedMessages) {
     throw std::invalid_argument("max_incomplete_messages must be at least 16 (protocol minimum)");
   }
@@ -98,6 +103,28 @@ struct Connection::Incoming {
   }
 };
 
+// TLS over the connection's socket. asio's TLS stream writes one buffer per record, so a batch
+// of frames is copied into one buffer first (`out`).
+struct Connection::Tls {
+  Tls(asio::ip::tcp::socket& socket, asio::ssl::context& context) : stream(socket, context) {}
+  asio::ssl::stream<asio::ip::tcp::socket&> stream;
+  std::vector<std::byte> out;
+};
+
+namespace {
+
+std::string certificate_common_name(SSL* ssl) {
+  X509* cert = SSL_get1_peer_certificate(ssl);
+  if (cert == nullptr) return {};
+  char name[256] = {};
+  const int n = X509_NAME_get_text_by_NID(X509_get_subject_name(cert), NID_commonName, name,
+                                          static_cast<int>(sizeof name));
+  X509_free(cert);
+  return n > 0 ? std::string(name, static_cast<std::size_t>(n)) : std::string();
+}
+
+}  // namespace
+
 std::atomic<std::uint64_t> Connection::next_id_{1};
 
 std::vector<std::byte> MessageHandler::join(std::vector<std::vector<std::byte>> blocks) {
@@ -120,7 +147,8 @@ void MessageHandler::on_large_message(const std::shared_ptr<Connection>& connect
 Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::socket socket,
                        ConnectionRole role, std::string local_pun,
                        const ConnectionOptions& options, MessageHandler& handler,
-                       std::shared_ptr<spdlog::logger> logger, Acceptor acceptor)
+                       std::shared_ptr<spdlog::logger> logger, Acceptor acceptor,
+                       ConnectionSecurity security)
     : io_(std::move(io)),
       socket_(std::move(socket)),
       timer_(socket_.get_executor()),
@@ -130,6 +158,7 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
       handler_(handler),
       log_(std::move(logger)),
       acceptor_(std::move(acceptor)),
+      token_(std::move(security.token)),
       id_(next_id_.fetch_add(1)),
       // Not zero-filled: a connection carrying small messages only ever touches the first pages.
       rbuf_(std::make_unique_for_overwrite<std::byte[]>(kReadBufferSize)) {
@@ -139,19 +168,75 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
   const auto remote = socket_.remote_endpoint(ec);
   remote_address_ = ec ? "unknown" : fmt::format("{}:{}", remote.address().to_string(), remote.port());
   batch_headers_.reserve(kMaxBatchFrames);
+  if (security.tls) {
+    tls_ = std::make_unique<Tls>(socket_, *security.tls);
+    if (role_ == ConnectionRole::client) {
+      const std::string& name = security.server_name;
+      // SNI, and the name the server's certificate must carry (an IP address is matched
+      // against the certificate's IP subject alternative names).
+      std::error_code address_ec;
+      (void)asio::ip::make_address(name, address_ec);
+      if (address_ec) {  // SSL_set_tlsext_host_name, without the macro's C cast
+        SSL_ctrl(tls_->stream.native_handle(), SSL_CTRL_SET_TLSEXT_HOSTNAME,
+                 TLSEXT_NAMETYPE_host_name, const_cast<char*>(name.c_str()));
+      }
+      tls_->stream.set_verify_mode(asio::ssl::verify_peer);
+      tls_->stream.set_verify_callback(asio::ssl::host_name_verification(name));
+    }
+  }
 }
 
 Connection::~Connection() = default;
 
 void Connection::start() {
   last_received_ = opened_at_ = std::chrono::steady_clock::now();
+  arm_timer();  // the handshake timeout covers the TLS handshake too
+  if (!tls_) {
+    begin_handshake();
+    return;
+  }
+  tls_->stream.async_handshake(
+      role_ == ConnectionRole::client ? asio::ssl::stream_base::client
+                                      : asio::ssl::stream_base::server,
+      [self = shared_from_this()](const std::error_code& ec) {
+        if (self->state_.load() == State::closed) return;
+        if (ec) {
+          const long verify = SSL_get_verify_result(self->tls_->stream.native_handle());
+          const std::string detail =
+              verify != X509_V_OK ? fmt::format(" ({})", X509_verify_cert_error_string(verify))
+                                  : std::string();
+          self->fail(ErrorKind::refused, fmt::format("TLS handshake with {} failed: {}{}",
+                                                     self->remote_address_, ec.message(), detail));
+          return;
+        }
+        std::string name = certificate_common_name(self->tls_->stream.native_handle());
+        {
+          std::lock_guard lock(self->info_mutex_);
+          self->peer_certificate_name_ = std::move(name);
+        }
+        self->begin_handshake();
+      });
+}
+
+void Connection::begin_handshake() {
   if (role_ == ConnectionRole::client) {
     std::vector<std::byte> payload;
-    Writer(payload).str(local_pun_);
+    Writer w(payload);
+    w.str(local_pun_);
+    if (!token_.empty()) w.str(token_);  // protocol 3.1: the optional credential
     send_control(FrameCode::connect, std::move(payload));
   }
-  arm_timer();
   read_more();
+}
+
+std::string Connection::peer_certificate_name() const {
+  std::lock_guard lock(info_mutex_);
+  return peer_certificate_name_;
+}
+
+std::shared_ptr<const Principal> Connection::principal() const {
+  std::lock_guard lock(info_mutex_);
+  return principal_;
 }
 
 std::string Connection::peer_pun() const {
@@ -208,7 +293,7 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   // thread; the io thread is not woken at all when the kernel takes the whole frame. Not while
   // the io thread is handling what one read brought: the replies to a batch of requests then
   // leave together in one write after it.
-  if (!writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
+  if (!tls_ && !writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
       messages_.empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
     return;
@@ -345,10 +430,16 @@ void Connection::write_batch() {
     return;
   }
   lock.unlock();
-  asio::async_write(socket_, batch_,
-                    [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
-                      self->on_written(ec, n);
-                    });
+  auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
+    self->on_written(ec, n);
+  };
+  if (tls_) {
+    tls_->out.resize(asio::buffer_size(batch_));
+    asio::buffer_copy(asio::buffer(tls_->out), batch_);
+    asio::async_write(tls_->stream, asio::buffer(tls_->out), std::move(on_done));
+  } else {
+    asio::async_write(socket_, batch_, std::move(on_done));
+  }
 }
 
 void Connection::on_written(const std::error_code& ec, std::size_t n) {
@@ -398,17 +489,22 @@ void Connection::read_more() {
     rend_ -= rbegin_;
     rbegin_ = 0;
   }
-  socket_.async_read_some(asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_),
-                          [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
-                            self->on_read(ec, n);
-                          });
+  auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
+    self->on_read(ec, n);
+  };
+  const auto space = asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_);
+  if (tls_) {
+    tls_->stream.async_read_some(space, std::move(on_done));
+  } else {
+    socket_.async_read_some(space, std::move(on_done));
+  }
 }
 
 void Connection::on_read(const std::error_code& ec, std::size_t n) {
   if (state_.load() == State::closed) return;
   if (ec) {
-    fail(ErrorKind::disconnected, ec == asio::error::eof
-                                      ? fmt::format("{} closed the connection", describe())
+    const bool closed = ec == asio::error::eof || ec == asio::ssl::error::stream_truncated;
+    fail(ErrorKind::disconnected, closed ? fmt::format("{} closed the connection", describe())
                                       : fmt::format("read from {} failed: {}", describe(),
                                                     ec.message()));
     return;
@@ -486,21 +582,26 @@ bool Connection::handle_frame(const FrameHeader& h, std::span<const std::byte> p
 }
 
 bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte> payload) {
-  std::string pun;
+  ConnectRequest request;
   try {
     Reader r(payload);
-    pun = r.str();
-    if (r.remaining() != 0) r.fail("trailing bytes after the PUN");
+    request.pun = r.str();
+    if (r.remaining() != 0) request.token = r.str();  // protocol 3.1: the optional credential
+    if (r.remaining() != 0) r.fail("trailing bytes after the token");
   } catch (const Error& e) {
     fail(ErrorKind::bad_data, fmt::format("malformed CONNECT from {}: {}", remote_address_, e.what()));
     return false;
   }
-  std::optional<std::string> deny;
+  request.remote_address = remote_address_;
+  request.certificate_name = peer_certificate_name();
   if (h.version_minor > kProtocolMinor) {
     log_->debug("{} speaks {}.{}; answering as {}.{}", remote_address_, h.version_major,
                 h.version_minor, kProtocolMajor, kProtocolMinor);
   }
-  if (acceptor_) deny = acceptor_(pun);
+  Admission admission;
+  if (acceptor_) admission = acceptor_(request);
+  std::optional<std::string>& deny = admission.deny;
+  const std::string& pun = request.pun;
   if (deny && deny->size() > kMaxControlPayload - 16) deny->resize(kMaxControlPayload - 16);
   std::vector<std::byte> reply;
   Writer w(reply);
@@ -517,6 +618,7 @@ bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte>
   {
     std::lock_guard lock(info_mutex_);
     peer_pun_ = pun;
+    principal_ = std::move(admission.principal);
   }
   send_control(FrameCode::connect_ack, std::move(reply));
   state_ = State::open;

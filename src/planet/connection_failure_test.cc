@@ -122,9 +122,10 @@ TEST(ConnectionFailure, FrozenPeerIsDetectedByHeartbeatTimeout) {
 
 TEST(ConnectionFailure, ServerCanDenyAClientWithAReason) {
   Communicator server;
-  server.connections().set_acceptor([](const std::string& pun) -> std::optional<std::string> {
-    if (pun == "intruder") return "unknown device 'intruder'";
-    return std::nullopt;
+  server.connections().set_acceptor([](const ConnectRequest& request) {
+    Admission admission;
+    if (request.pun == "intruder") admission.deny = "unknown device 'intruder'";
+    return admission;
   });
   const auto port = server.listen("127.0.0.1", 0);
 

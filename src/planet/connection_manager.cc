@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <asio/connect.hpp>
 #include <asio/post.hpp>
+#include <asio/ssl/context.hpp>
 #include <future>
 
 namespace icars::planet {
@@ -15,6 +16,57 @@ struct ConnectionManager::Acceptor {
   asio::ip::tcp::acceptor socket;
 };
 
+namespace {
+
+// TLS 1.2 or later, in the role given, with this endpoint's certificate if it has one.
+std::shared_ptr<asio::ssl::context> make_context(const TlsOptions& o, bool server) {
+  auto context = std::make_shared<asio::ssl::context>(server ? asio::ssl::context::tls_server
+                                                             : asio::ssl::context::tls_client);
+  context->set_options(asio::ssl::context::default_workarounds | asio::ssl::context::no_sslv2 |
+                       asio::ssl::context::no_sslv3 | asio::ssl::context::no_tlsv1 |
+                       asio::ssl::context::no_tlsv1_1);
+  const auto step = [](const char* what, const std::string& file, auto&& load) {
+    std::error_code ec;
+    load(ec);
+    if (ec) {
+      throw std::invalid_argument(fmt::format("tls.{} '{}': {}", what, file, ec.message()));
+    }
+  };
+  if (!o.certificate_file.empty()) {
+    step("certificate_file", o.certificate_file,
+         [&](std::error_code& ec) { context->use_certificate_chain_file(o.certificate_file, ec); });
+    step("private_key_file", o.private_key_file, [&](std::error_code& ec) {
+      context->use_private_key_file(o.private_key_file, asio::ssl::context::pem, ec);
+    });
+  }
+  if (!o.ca_file.empty()) {
+    step("ca_file", o.ca_file, [&](std::error_code& ec) { context->load_verify_file(o.ca_file, ec); });
+  } else if (!server) {
+    context->set_default_verify_paths();
+  }
+  if (server) {
+    if (o.require_client_certificate) {
+      context->set_verify_mode(asio::ssl::verify_peer | asio::ssl::verify_fail_if_no_peer_cert);
+    } else if (!o.ca_file.empty()) {
+      context->set_verify_mode(asio::ssl::verify_peer);  // a client certificate, if sent, is checked
+    }
+  } else {
+    context->set_verify_mode(asio::ssl::verify_peer);
+  }
+  return context;
+}
+
+// CONNECT (PUN and token) and CONNECT_ACK must each fit one control frame.
+void check_connect_fits(const std::string& pun, const std::string& token) {
+  const std::size_t room = kMaxControlPayload - 16 - (token.empty() ? 0 : 4 + token.size());
+  if (pun.size() > room) {
+    throw std::invalid_argument(fmt::format("PUN of {} bytes is longer than {}{}", pun.size(),
+                                            room, token.empty() ? "" : " (with the token)"));
+  }
+}
+
+}  // namespace
+
 // --- Peer ----------------------------------------------------------------------------------
 
 Peer::Peer(ConnectionManager& manager, std::string host, std::uint16_t port, ReconnectPolicy policy)
@@ -23,6 +75,7 @@ Peer::Peer(ConnectionManager& manager, std::string host, std::uint16_t port, Rec
       host_(std::move(host)),
       port_(port),
       policy_(policy),
+      tls_(manager.wants_tls(host_)),
       delay_(policy.initial_delay),
       resolver_(*io_),
       timer_(*io_) {}
@@ -124,7 +177,7 @@ void Peer::attempt() {
                 if (self->stopped_) return;
               }
               auto connection =
-                  self->manager_.adopt(std::move(*socket), ConnectionRole::client, self);
+                  self->manager_.adopt(std::move(*socket), ConnectionRole::client, self, self->tls_);
               std::lock_guard lock(self->mutex_);
               self->handshaking_ = connection;
             });
@@ -193,12 +246,95 @@ void ConnectionManager::set_acceptor(Connection::Acceptor acceptor) {
   accept_policy_ = std::move(acceptor);
 }
 
-void ConnectionManager::set_local_pun(std::string pun) {
-  if (pun.size() > kMaxControlPayload - 16) {  // CONNECT and CONNECT_ACK must fit one frame
+void ConnectionManager::set_tls(const TlsOptions& options) {
+  options.validate();
+  auto server = options.certificate_file.empty() ? nullptr : make_context(options, true);
+  auto client = make_context(options, false);
+  std::lock_guard lock(mutex_);
+  tls_options_ = options;
+  server_tls_ = std::move(server);
+  client_tls_ = std::move(client);
+}
+
+void ConnectionManager::set_token(std::string token) {
+  if (token.size() > kMaxTokenSize) {
     throw std::invalid_argument(
-        fmt::format("PUN of {} bytes is longer than {}", pun.size(), kMaxControlPayload - 16));
+        fmt::format("token of {} bytes is longer than {}", token.size(), kMaxTokenSize));
   }
   std::lock_guard lock(mutex_);
+  check_connect_fits(local_pun_, token);
+  token_ = std::move(token);
+}
+
+void ConnectionManager::set_access_policy(std::shared_ptr<const AccessPolicy> policy) {
+  std::lock_guard lock(mutex_);
+  access_ = std::move(policy);
+}
+
+bool ConnectionManager::wants_tls(const std::string& host) const {
+  std::lock_guard lock(mutex_);
+  switch (tls_options_.mode) {
+    case TlsMode::on:
+      return true;
+    case TlsMode::off:
+      return false;
+    case TlsMode::automatic:
+      break;
+  }
+  return !is_loopback_host(host);
+}
+
+std::shared_ptr<asio::ssl::context> ConnectionManager::client_context() {
+  std::lock_guard lock(mutex_);
+  if (!client_tls_) client_tls_ = make_context(tls_options_, false);
+  return client_tls_;
+}
+
+Admission ConnectionManager::admit(const ConnectRequest& request) {
+  Connection::Acceptor extra;
+  std::shared_ptr<const AccessPolicy> access;
+  std::size_t admitted = 0;
+  {
+    std::lock_guard lock(mutex_);
+    extra = accept_policy_;
+    access = access_;
+    for (const auto& [id, c] : connections_) {
+      if (c->role() == ConnectionRole::server && c->is_open()) ++admitted;
+    }
+  }
+  Admission admission;
+  if (admitted >= options_.max_connections) {
+    admission.deny = fmt::format("server full: {} connections open (max_connections); retry later",
+                                 admitted);
+    return admission;
+  }
+  if (access) {
+    const Principal* principal = access->authenticate(request.token, request.certificate_name);
+    if (principal == nullptr) {
+      admission.deny =
+          request.token.empty() && request.certificate_name.empty()
+              ? std::string("authentication required: send a token (CommunicatorOptions::token) "
+                            "or a client certificate")
+              : fmt::format("authentication failed: {} is not a known principal",
+                            request.certificate_name.empty()
+                                ? std::string("the token")
+                                : fmt::format("certificate '{}' and the token",
+                                              request.certificate_name));
+      return admission;
+    }
+    admission.principal = std::shared_ptr<const Principal>(access, principal);
+  }
+  if (extra) {
+    Admission decided = extra(request);
+    if (decided.deny) return decided;
+    if (decided.principal) admission.principal = std::move(decided.principal);
+  }
+  return admission;
+}
+
+void ConnectionManager::set_local_pun(std::string pun) {
+  std::lock_guard lock(mutex_);
+  check_connect_fits(pun, token_);
   local_pun_ = std::move(pun);
 }
 
@@ -209,6 +345,15 @@ std::string ConnectionManager::local_pun() const {
 
 std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_t port) {
   auto acceptor = std::make_shared<Acceptor>(*io_);
+  if (wants_tls(address)) {  // some clients will need TLS
+    std::lock_guard lock(mutex_);
+    if (!server_tls_) {
+      throw std::invalid_argument(fmt::format(
+          "listening on {} needs TLS ({}): configure tls.certificate_file and "
+          "tls.private_key_file, or set tls.mode = off on a network where every host is trusted",
+          address, tls_options_.mode == TlsMode::on ? "tls.mode = on" : "not a loopback address"));
+    }
+  }
   const asio::ip::tcp::endpoint endpoint(asio::ip::make_address(address), port);
   acceptor->socket.open(endpoint.protocol());
   acceptor->socket.set_option(asio::ip::tcp::acceptor::reuse_address(true));
@@ -221,7 +366,7 @@ std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_
     acceptors_.push_back(acceptor);
   }
   asio::post(*io_, [this, acceptor] { accept_next(acceptor); });
-  log_->info("listening on {}:{}", address, bound);
+  log_->info("listening on {}:{}{}", address, bound, wants_tls(address) ? " (TLS)" : "");
   return bound;
 }
 
@@ -232,7 +377,12 @@ void ConnectionManager::accept_next(const std::shared_ptr<Acceptor>& acceptor) {
     if (ec) {
       log_->warn("accept failed: {}", ec.message());
     } else {
-      adopt(std::move(socket), ConnectionRole::server, nullptr);
+      // In automatic mode a loopback client speaks plaintext and any other one TLS, as each
+      // client decides from the host it connects to.
+      std::error_code rec;
+      const auto remote = socket.remote_endpoint(rec);
+      const bool tls = wants_tls(rec ? std::string("unknown") : remote.address().to_string());
+      adopt(std::move(socket), ConnectionRole::server, nullptr, tls);
     }
     accept_next(acceptor);
   });
@@ -240,13 +390,24 @@ void ConnectionManager::accept_next(const std::shared_ptr<Acceptor>& acceptor) {
 
 std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socket,
                                                      ConnectionRole role,
-                                                     const std::shared_ptr<Peer>& owner) {
+                                                     const std::shared_ptr<Peer>& owner, bool tls) {
   std::string pun;
-  Connection::Acceptor policy;
+  ConnectionSecurity security;
   {
     std::lock_guard lock(mutex_);
     pun = local_pun_;
-    policy = accept_policy_;
+    if (role == ConnectionRole::client) security.token = token_;
+    if (tls && role == ConnectionRole::server) security.tls = server_tls_;
+  }
+  if (tls && role == ConnectionRole::client) {
+    security.tls = client_context();
+    std::lock_guard lock(mutex_);
+    security.server_name = tls_options_.server_name.empty() && owner ? owner->host_
+                                                                     : tls_options_.server_name;
+  }
+  Connection::Acceptor policy;
+  if (role == ConnectionRole::server) {
+    policy = [this](const ConnectRequest& request) { return admit(request); };
   }
   if (pun.empty()) {
     std::error_code ec;
@@ -254,7 +415,8 @@ std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socke
     pun = ec ? "unknown" : fmt::format("{}:{}", local.address().to_string(), local.port());
   }
   auto connection = std::make_shared<Connection>(io_, std::move(socket), role, std::move(pun),
-                                                 options_, *this, log_, std::move(policy));
+                                                 options_, *this, log_, std::move(policy),
+                                                 std::move(security));
   {
     std::lock_guard lock(mutex_);
     connections_.emplace(connection->id(), connection);

@@ -18,6 +18,8 @@ std::string_view to_string(ErrorKind kind) noexcept {
       return "bad_data";
     case ErrorKind::refused:
       return "refused";
+    case ErrorKind::denied:
+      return "denied";
   }
   return "unknown";
 }

@@ -970,10 +970,16 @@ TEST_F(MalformedInput, MalformedHeaderFieldsAreClosed) {
                        "malformed CONNECT"});
   }
   {
+    // After the PUN only a token (a string, protocol 3.1) may follow.
     Bytes pun = connect_payload("ok");
     put_u8(pun, 0x42);
-    attacks.push_back({"trailing bytes after the PUN", control_frame(kConnect, pun),
-                       "trailing bytes after the PUN"});
+    attacks.push_back({"a stray byte after the PUN", control_frame(kConnect, pun),
+                       "malformed CONNECT"});
+    Bytes with_token = connect_payload("ok");
+    put_str(with_token, "token");
+    put_u8(with_token, 0x42);
+    attacks.push_back({"trailing bytes after the token", control_frame(kConnect, with_token),
+                       "trailing bytes after the token"});
   }
   attacks.push_back({"empty CONNECT payload", control_frame(kConnect), "malformed CONNECT"});
 

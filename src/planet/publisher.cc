@@ -1,5 +1,7 @@
 #include "icars/planet/publisher.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 
 #include "icars/planet/rmi_message.h"
@@ -8,6 +10,11 @@ namespace icars::planet::detail {
 
 std::uint64_t FanOut::subscribe(std::shared_ptr<Link> link, std::string path) {
   std::lock_guard lock(mutex_);
+  if (subscribers_.size() >= options_.max_subscribers) {
+    throw Error(ErrorKind::overloaded,
+                fmt::format("{} refuses {} at {}: {} subscribers already (max_subscribers)",
+                            method_, link->describe(), path, subscribers_.size()));
+  }
   Subscriber s;
   s.info.id = next_id_++;
   s.info.link = link->describe();

@@ -76,6 +76,38 @@ TEST(Publisher, EveryListenerReceivesEveryEventTypedAndInOrder) {
   }
 }
 
+TEST(Publisher, SubscribersBeyondMaxSubscribersAreRefusedAndTheOthersKeepTheirEvents) {
+  Communicator publisher_side;
+  PublisherOptions options;
+  options.max_subscribers = 2;
+  Publisher<Tick> ticks(TickListener::on_tick, options);
+  serve_ticks(publisher_side, ticks);
+  const auto port = publisher_side.listen("127.0.0.1", 0);
+
+  Communicator subscriber_side;
+  std::atomic<int> received{0};
+  for (const char* path : {"/a", "/b", "/c"}) {
+    auto listener = std::make_shared<Servant>(std::string(TickListener::type_id));
+    listener->implement(TickListener::on_tick, [&received](const Tick&) { ++received; });
+    subscriber_side.adapter().add(path, listener);
+  }
+  auto peer = subscriber_side.connect("127.0.0.1", port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  Proxy source(subscriber_side, peer, "/ticks");
+  source.call(TickSource::subscribe, subscriber_side.reference<TickListener>("/a"));
+  source.call(TickSource::subscribe, subscriber_side.reference<TickListener>("/b"));
+  try {
+    source.call(TickSource::subscribe, subscriber_side.reference<TickListener>("/c"));
+    FAIL() << "a third subscriber must be refused";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::overloaded) << e.what();
+    EXPECT_NE(std::string(e.what()).find("max_subscribers"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(ticks.size(), 2u);
+  EXPECT_EQ(ticks.publish(tick(1)), 2u);
+  EXPECT_TRUE(planet_test::wait_until([&] { return received.load() == 2; }));
+}
+
 TEST(Publisher, UnsubscribedAndDisconnectedListenersAreDropped) {
   Communicator publisher_side;
   Publisher<Tick> ticks(TickListener::on_tick);

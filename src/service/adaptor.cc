@@ -26,6 +26,16 @@ void Adaptor::log_failure(planet::Communicator& communicator, std::string_view w
   }
 }
 
+void Adaptor::set_call_observer(std::shared_ptr<planet::CallObserver> observer) {
+  std::lock_guard lock(observer_mutex_);
+  call_observer_ = std::move(observer);
+}
+
+std::shared_ptr<planet::CallObserver> Adaptor::call_observer() const {
+  std::lock_guard lock(observer_mutex_);
+  return call_observer_;
+}
+
 void Adaptor::unbind() {
   set_available(false);
   on_unbind();

@@ -73,6 +73,7 @@ void DeviceRegistry::register_device(const df::DeviceInfo& device, const planet:
     }
     it->second.connection_id = current.connection->id();
     services = it->second.services;
+    for (const auto& s : services) s->set_call_observer(call_observer_);
   }
   for (const auto& s : services) s->bind(communicator_, current.connection);
 }
@@ -104,6 +105,11 @@ std::size_t DeviceRegistry::connected_devices() const {
   std::size_t n = 0;
   for (const auto& [id, r] : devices_) n += r.connection_id != 0;
   return n;
+}
+
+void DeviceRegistry::set_call_observer(std::shared_ptr<planet::CallObserver> observer) {
+  std::lock_guard lock(mutex_);
+  call_observer_ = std::move(observer);
 }
 
 void DeviceRegistry::on_disconnected(std::uint64_t connection_id) {

@@ -13,6 +13,11 @@
 // fire, operators' handlers run. Operators therefore need no locks. From other threads use
 // post() or call().
 //
+// Every datagram is signed with the fleet key and every one received is authenticated before
+// decoding goes further (transport.h, authentication.h); an agent without a key refuses to be
+// constructed unless its configuration says `insecure`. Datagrams that fail authentication are
+// counted by reason in stats() and shown in the "stopped" event; no handler sees them.
+//
 // A datagram that cannot be decoded, or that a handler rejects (a CorosError or any other
 // exception), is counted and reported through the event sink as {"event":"bad_datagram",...};
 // it never stops the agent. A well-formed message whose code no operator of this agent
@@ -109,7 +114,8 @@ class Agent {
  public:
   using EventSink = std::function<void(const nlohmann::json&)>;
 
-  // Binds the sockets (throws CorosError when it cannot); nothing runs until start().
+  // Binds the sockets (throws CorosError when it cannot, or when the configuration has no
+  // fleet key and does not say insecure); nothing runs until start().
   explicit Agent(AgentConfiguration config);
   ~Agent();  // stop()
   Agent(const Agent&) = delete;
@@ -168,6 +174,8 @@ class Agent {
   void emit(nlohmann::json event);
 
   std::uint64_t bad_datagrams() const { return bad_datagrams_; }
+  // What the transport sent, received and dropped, by reason; thread-safe.
+  TransportStats stats() const { return transport_->stats(); }
   static double wall_seconds();  // seconds since the Unix epoch
 
  private:

@@ -80,7 +80,8 @@ struct AgentConfiguration {
   bool exit_when_done = true;
   std::filesystem::path track_file;  // robots: write the driven path here as JSON on exit
 
-  // Reads a JSON configuration (docs/coros.md); a relative map path is relative to the file.
+  // Reads a JSON configuration (docs/coros.md); a relative map or key file path is relative to
+  // the file. The fleet key ('key_file' or 'key') is required unless 'insecure' is true.
   // Throws CorosError "file: what was wrong" for unreadable, malformed or inconsistent files.
   static AgentConfiguration load(const std::filesystem::path& file);
   static AgentConfiguration parse(const std::string& json, const std::filesystem::path& base_dir,

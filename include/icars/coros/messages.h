@@ -5,15 +5,19 @@
 // on every platform (the paper serialized with Boost and named platform independence as
 // future work). A datagram is:
 //
-//   magic "CR" | version u8 = 1 | code u16 | sender string | tagged value
+//   magic "CR" | version u8 | code u16 | sender string | tagged value [| trailer]
 //
-// all big-endian (docs/coros.md). The tagged value carries the struct's type name, so a
-// datagram whose code and body disagree is rejected instead of misread. decode_datagram()
-// never reads out of range and throws CorosError for anything malformed.
+// all big-endian (docs/coros.md). Version 1 has no trailer; version 2, what agents with a fleet
+// key send, ends in the authentication trailer (generation u64 | counter u64 | 16-byte tag),
+// which authentication.h writes and checks. The tagged value carries the struct's type name, so
+// a datagram whose code and body disagree is rejected instead of misread. decode_datagram()
+// never reads out of range and throws CorosError for anything malformed; it does not check the
+// tag (that is DatagramVerifier's separate step).
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <stdexcept>
 #include <string>
@@ -24,8 +28,11 @@
 
 namespace icars::coros {
 
-inline constexpr std::size_t kMaxDatagram = 65507;  // the largest UDP payload over IPv4
-inline constexpr std::uint8_t kProtocolVersion = 1;
+inline constexpr std::size_t kMaxDatagram = 65507;        // the largest UDP payload over IPv4
+inline constexpr std::uint8_t kProtocolVersion = 1;       // unsigned datagrams
+inline constexpr std::uint8_t kAuthenticatedVersion = 2;  // with the authentication trailer
+inline constexpr std::size_t kAuthTagSize = 16;           // HMAC-SHA256 truncated to 128 bits
+inline constexpr std::size_t kAuthTrailerSize = 8 + 8 + kAuthTagSize;
 
 // A datagram or configuration that cannot be used; what() says what was wrong.
 class CorosError : public std::runtime_error {
@@ -180,11 +187,19 @@ concept Message = planet::Encodable<M> && requires {
   { M::kCode } -> std::convertible_to<MessageCode>;
 };
 
+// The fields of a version 2 datagram's trailer, as read: not checked by decode_datagram().
+struct AuthenticationTrailer {
+  std::uint64_t generation = 0;  // the sender's start time, microseconds since the Unix epoch
+  std::uint64_t counter = 0;     // grows by one with every datagram that generation sends
+  bool operator==(const AuthenticationTrailer&) const = default;
+};
+
 // A datagram taken apart: the header, and the body still encoded (decoded by body_as<M>()).
 struct Datagram {
   MessageCode code{};
   std::string sender;
-  std::vector<std::byte> body;  // the tagged value
+  std::vector<std::byte> body;                          // the tagged value (without the trailer)
+  std::optional<AuthenticationTrailer> authentication;  // version 2 only
 
   template <Message M>
   M body_as() const {
@@ -210,14 +225,15 @@ std::vector<std::byte> encode_datagram(std::string_view sender, const M& message
   std::vector<std::byte> out = encode_header(M::kCode, sender);
   planet::Writer w(out);
   planet::encode_tagged(w, message);
-  if (out.size() > kMaxDatagram) {
+  if (out.size() + kAuthTrailerSize > kMaxDatagram) {  // room to sign it
     throw CorosError(std::string(to_string(M::kCode)) + " of " + std::to_string(out.size()) +
                      " bytes does not fit in a datagram");
   }
   return out;
 }
 
-// Checks magic, version and sizes and splits header from body; throws CorosError.
+// Checks magic, version and sizes and splits header, body and (version 2) trailer; throws
+// CorosError. Does not authenticate: see DatagramVerifier (authentication.h).
 Datagram decode_datagram(std::span<const std::byte> bytes);
 
 }  // namespace icars::coros

@@ -17,5 +17,7 @@ class TaskObserverOperator : public SimpleOperator {
 // "agent  role  status  load  position  heard" and "task  round  robot  stage  distance".
 std::string render_neighbors(const NeighborMonitor& neighbors, Clock::time_point now);
 std::string render_tasks(const TaskMonitor& tasks);
+// "datagrams: 812 received, 240 sent; dropped: 0 malformed, 3 unsigned, 1 bad tag, 0 replayed".
+std::string render_datagram_stats(const TransportStats& stats);
 
 }  // namespace icars::coros

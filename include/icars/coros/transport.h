@@ -10,6 +10,12 @@
 // the subnet's broadcast address on a network) at the shared port; every agent, the sender
 // included, gets it. Receivers learn the sender's unicast endpoint from the datagram's source.
 //
+// With a fleet key (TransportOptions::key) every datagram sent is signed and every one received
+// is verified before delivery (authentication.h): unsigned, badly tagged and replayed datagrams
+// are counted by reason in TransportStats and logged at warn, at most once a second per source
+// address, and never reach the receiver. Without a key the transport refuses to exist unless
+// `insecure` is set; it then sends unsigned datagrams and accepts any well-formed one.
+//
 // FaultInjection is the test hook: it drops, duplicates and delays (so reorders) outgoing
 // datagrams at random, from a seed, to show the protocols survive a lossy network.
 #pragma once
@@ -20,12 +26,18 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <random>
 #include <span>
 #include <string>
 #include <vector>
 
+#include "icars/coros/authentication.h"
 #include "icars/coros/messages.h"
+
+namespace spdlog {
+class logger;
+}
 
 namespace icars::coros {
 
@@ -46,11 +58,20 @@ struct TransportOptions {
   std::string broadcast_address = "127.255.255.255";
   std::uint16_t broadcast_port = 47800;
   FaultInjection faults;
+  std::optional<FleetKey> key;             // the fleet's key: sign and verify every datagram
+  bool insecure = false;                   // no key on purpose: nothing is signed or checked
+  std::shared_ptr<spdlog::logger> logger;  // warnings; default: a stderr logger "coros"
 };
 
 struct TransportStats {
   std::uint64_t sent = 0, received = 0, dropped_by_hook = 0, duplicated_by_hook = 0,
                 delayed_by_hook = 0, malformed = 0, send_errors = 0;
+  // Dropped before delivery, by reason (Rejection): no trailer, a tag that does not match,
+  // a generation and counter seen before or too old.
+  std::uint64_t rejected_unsigned = 0, rejected_bad_tag = 0, rejected_replayed = 0;
+  std::uint64_t rejected() const {
+    return rejected_unsigned + rejected_bad_tag + rejected_replayed;
+  }
 };
 
 class UdpTransport {
@@ -59,24 +80,28 @@ class UdpTransport {
   // Called with what was wrong with a datagram that could not be decoded.
   using ErrorSink = std::function<void(const std::string&, const asio::ip::udp::endpoint& from)>;
 
-  // Binds both sockets; throws CorosError naming the address when it cannot.
+  // Binds both sockets; throws CorosError naming the address when it cannot, or when there is
+  // neither a key nor `insecure`.
   UdpTransport(asio::io_context& io, TransportOptions options);
   ~UdpTransport();
   UdpTransport(const UdpTransport&) = delete;
   UdpTransport& operator=(const UdpTransport&) = delete;
 
   // Starts receiving; handlers run on the io_context. Own datagrams (broadcasts coming back)
-  // are not delivered.
+  // and datagrams that fail authentication are not delivered. An insecure transport says so
+  // at warn level here.
   void start(Receiver on_datagram, ErrorSink on_error = {});
   void close();
 
-  // Both return at once; the datagram leaves from the io_context (errors are counted).
+  // Both sign the datagram (with a key) and return at once; it leaves from the io_context
+  // (errors are counted). Thread-safe. Throws CorosError for bytes that cannot be signed.
   void send_to(const asio::ip::udp::endpoint& to, std::vector<std::byte> datagram);
   void broadcast(std::vector<std::byte> datagram);
 
   asio::ip::udp::endpoint local_endpoint() const;
   const TransportOptions& options() const { return options_; }
-  TransportStats stats() const;
+  TransportStats stats() const;  // thread-safe
+  bool authenticated() const { return options_.key.has_value(); }
 
  private:
   struct Impl;

@@ -8,7 +8,7 @@
 //   Light         light          home::Light
 //   Speaker       speaker        home::Speaker
 //   Microphone    sound_sensor   home::Microphone        (sound events with speech audio)
-//   Wheels        wheels         home::Wheels            (go_to, position events)
+//   Wheels        wheels         home::Wheels            (go_to, position events; effects too)
 //   Camera        camera         home::Camera            (a "sim/scene" image)
 //   MotionSensor  motion         home::MotionSensor      (param room: the room it watches)
 //   BedOccupancy, SofaOccupancy, Occupancy
@@ -17,7 +17,7 @@
 //   SpeechEngine  speech_recognizer  home::SpeechRecognizer (a software device)
 //   VisionEngine  face_recognizer    home::FaceRecognizer   (a software device)
 // and the pseudo-device "simulator" (Simulation) through which tests and demos drive the world.
-// The actuators (TV, Light, Speaker) report what they did to SimContext::effects.
+// The actuators (TV, Light, Speaker, Wheels) report what they did to SimContext::effects.
 #pragma once
 
 #include <functional>
@@ -48,11 +48,16 @@ struct SimulatedSpeech {
 // What a simulated actuator did, as the house would show it ("tv: power on"), independent of
 // what any client believes: one per accepted command, after the device's state changed (or
 // was confirmed: turning on a TV that is on is reported too). Refused commands report nothing.
+// The request id names the command, so a caller's record of the calls it sent can be matched
+// with what the devices executed (each command exactly once).
 struct DeviceEffect {
   sim::SimTime time{0};  // the clock's time when the command took effect
   std::string device;    // "tv"
-  std::string what;      // "power", "channel", "volume", "intensity", "playing", "stopped", "spoke"
-  std::string value;     // "on"/"off", "5", the track, the spoken text; "" for "stopped"
+  std::string what;      // "power", "channel", "volume", "intensity", "playing", "stopped",
+                         // "spoke"; the wheels: "heading" (go_to...), "halted", "turned"
+  std::string value;     // "on"/"off", "5", the track, the spoken text, the target, the angle;
+                         // "" for "stopped" and "halted"
+  std::uint32_t request_id = 0;  // the PLANET request id of the call that commanded it
 };
 // Called on the thread of the communicator serving the device, with no lock of the device
 // held; it must not block for long (it delays that communicator's other calls).

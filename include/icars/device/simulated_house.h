@@ -26,6 +26,8 @@ struct SimulatedHouseOptions {
   bool engines = true;            // host the speech and vision engines
   bool simulator = true;          // host the Simulation control device
   std::string pun;                // the device manager's PLANET name
+  planet::TlsOptions tls;         // TLS to the server (docs/security.md)
+  std::string token;              // authenticates the device manager to the server
   std::shared_ptr<spdlog::logger> logger;  // the device communicator's; default: stderr, info
   EffectObserver effects;  // hears what the simulated actuators do (SimContext::effects)
 };

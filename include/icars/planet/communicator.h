@@ -28,6 +28,7 @@
 #include "icars/planet/remote.h"
 #include "icars/planet/detail/unique_function.h"
 #include "icars/planet/rmi_message.h"
+#include "icars/planet/security.h"
 #include "icars/planet/servant.h"
 
 namespace spdlog {
@@ -43,6 +44,11 @@ class StreamTable;
 struct CommunicatorOptions {
   ConnectionOptions connection;
   std::chrono::milliseconds call_timeout{10000};  // default deadline of a two-way call
+  std::size_t max_pending_calls = 65536;  // two-way calls awaiting replies; more fail `overloaded`
+  TlsOptions tls;     // TLS for listeners and links (security.h); automatic by default
+  std::string token;  // sent in CONNECT to authenticate this endpoint to servers
+  // Who may connect to this endpoint's listeners and what each may call; null: anyone, anything.
+  std::shared_ptr<const AccessPolicy> access;
   std::string pun;   // this endpoint's name in CONNECT/CONNECT_ACK; default "<address>:<port>"
   std::string name = "planet";                   // logger name
   std::shared_ptr<spdlog::logger> logger;        // default: a stderr logger at "info"

@@ -26,9 +26,13 @@
 
 #include "icars/planet/error.h"
 #include "icars/planet/frame.h"
+#include "icars/planet/security.h"
 
 namespace spdlog {
 class logger;
+}
+namespace asio::ssl {
+class context;
 }
 
 namespace icars::planet {
@@ -43,6 +47,8 @@ inline constexpr std::size_t kMaxInterleavedMessages = 16;
 // Control frames (acks, heartbeats) queued but unwritten; beyond this the peer is not reading
 // and the connection is closed.
 inline constexpr std::size_t kMaxQueuedControlFrames = 4096;
+// The longest token a client may send in CONNECT (protocol 3.1).
+inline constexpr std::size_t kMaxTokenSize = 256;
 
 struct ConnectionOptions {
   std::chrono::milliseconds heartbeat_interval{1000};  // a HEARTBEAT is sent this often
@@ -54,11 +60,33 @@ struct ConnectionOptions {
                                                // acks are held back (only the oldest proceeds)
   std::size_t max_incomplete_messages = 256;   // interleaved incoming messages per connection
                                                // (at least kMaxInterleavedMessages)
+  std::size_t max_connections = 1024;  // server role: clients admitted at once; more are denied
 
   void validate() const;  // throws std::invalid_argument naming the bad option
 };
 
 enum class ConnectionRole : std::uint8_t { client, server };
+
+// What a client says about itself in CONNECT, and what TLS proved about it.
+struct ConnectRequest {
+  std::string pun;
+  std::string token;             // empty: none sent
+  std::string certificate_name;  // common name of its verified TLS client certificate, if any
+  std::string remote_address;
+};
+
+// A server's decision on a CONNECT.
+struct Admission {
+  std::optional<std::string> deny;             // set: CONNECT_ACK 0xFF with this reason
+  std::shared_ptr<const Principal> principal;  // who the client is; null: not authenticated
+};
+
+// How a connection protects itself: plaintext when `tls` is null.
+struct ConnectionSecurity {
+  std::shared_ptr<asio::ssl::context> tls;
+  std::string server_name;  // client: the name the server's certificate must carry
+  std::string token;        // client: sent in CONNECT to authenticate this endpoint
+};
 
 class Connection;
 
@@ -110,18 +138,20 @@ struct ConnectionStats {
 
 class Connection final : public Link, public std::enable_shared_from_this<Connection> {
  public:
-  // Decides whether a server accepts a client: nullopt accepts, a string denies with that reason.
-  using Acceptor = std::function<std::optional<std::string>(const std::string& pun)>;
+  // Decides whether a server admits a client (runs on the io thread during the handshake).
+  using Acceptor = std::function<Admission(const ConnectRequest&)>;
 
   Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::socket socket,
              ConnectionRole role, std::string local_pun,
              const ConnectionOptions& options, MessageHandler& handler,
-             std::shared_ptr<spdlog::logger> logger, Acceptor acceptor = {});
+             std::shared_ptr<spdlog::logger> logger, Acceptor acceptor = {},
+             ConnectionSecurity security = {});
   ~Connection() override;
   Connection(const Connection&) = delete;
   Connection& operator=(const Connection&) = delete;
 
-  // Starts the handshake (a client sends CONNECT) and the read loop. Call once, on the io thread.
+  // Starts the handshake (TLS first when secured, then a client sends CONNECT) and the read
+  // loop. Call once, on the io thread.
   void start();
 
   // Queues a message. Never blocks. Throws Error(disconnected) when the connection is not open
@@ -140,6 +170,11 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::uint64_t id() const { return id_; }
   const std::string& local_pun() const { return local_pun_; }
   std::string peer_pun() const;  // the PUN the peer announced in CONNECT / CONNECT_ACK
+  bool is_tls() const { return tls_ != nullptr; }
+  // The common name of the peer's verified TLS certificate; empty without one.
+  std::string peer_certificate_name() const;
+  // Server role: the principal the client authenticated as (null without an AccessPolicy).
+  std::shared_ptr<const Principal> principal() const;
   const std::string& remote_address() const { return remote_address_; }
   std::size_t queued_bytes() const;  // bytes accepted by send() and not yet written
   ConnectionStats stats() const;
@@ -152,7 +187,9 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   enum class State : std::uint8_t { handshaking, open, closed };
   struct Outgoing;
   struct Incoming;
+  struct Tls;
 
+  void begin_handshake();
   void read_more();
   void on_read(const std::error_code& ec, std::size_t n);
   bool handle_frame(const FrameHeader& h, std::span<const std::byte> payload);
@@ -183,6 +220,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   MessageHandler& handler_;
   std::shared_ptr<spdlog::logger> log_;
   Acceptor acceptor_;
+  std::string token_;
+  std::unique_ptr<Tls> tls_;  // null: plaintext
   std::uint64_t id_;
   std::string remote_address_;
   std::atomic<State> state_{State::handshaking};
@@ -216,6 +255,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
 
   mutable std::mutex info_mutex_;
   std::string peer_pun_;
+  std::string peer_certificate_name_;
+  std::shared_ptr<const Principal> principal_;
 
   // The batch being written (io thread only while writing_).
   std::vector<asio::const_buffer> batch_;

@@ -1,7 +1,9 @@
 // PLANET Connection Manager: the client and server roles of the message transfer layer.
 //
-// The server role accepts TCP connections, completes the CONNECT / CONNECT_ACK handshake (an
-// optional acceptor may deny a client with a reason) and tracks live connections. The client
+// The server role accepts TCP connections, completes the TLS handshake where the listener is
+// secured and the CONNECT / CONNECT_ACK handshake (admitting a client only within
+// `max_connections`, when its token or certificate names a principal of the AccessPolicy, and
+// when the optional acceptor agrees) and tracks live connections. The client
 // role is a `Peer`: a link to one server that connects in the background and, whenever the
 // link drops, reconnects by itself with exponential backoff until stopped. Listeners hear of
 // every connection, disconnection and reconnection. Either side may invoke objects on the other
@@ -63,6 +65,7 @@ class Peer final : public Link, public std::enable_shared_from_this<Peer> {
   std::string last_error() const;
   // Stops reconnecting and closes the link. Thread-safe.
   void stop();
+  bool uses_tls() const { return tls_; }
 
  private:
   friend class ConnectionManager;
@@ -78,6 +81,7 @@ class Peer final : public Link, public std::enable_shared_from_this<Peer> {
   std::string host_;
   std::uint16_t port_;
   ReconnectPolicy policy_;
+  bool tls_ = false;
   std::chrono::milliseconds delay_;
   asio::ip::tcp::resolver resolver_;
   asio::steady_timer timer_;
@@ -101,16 +105,26 @@ class ConnectionManager final : public MessageHandler {
   ~ConnectionManager() override;
 
   // Server role: listens on address:port (port 0 picks a free one) and returns the bound port.
+  // The listener uses TLS when the TlsMode says so for `address` (set_tls); throws
+  // std::invalid_argument when it must and no certificate is configured.
   std::uint16_t listen(const std::string& address, std::uint16_t port);
-  // Client role: a Peer that connects in the background and keeps reconnecting.
+  // Client role: a Peer that connects in the background and keeps reconnecting; over TLS when
+  // the TlsMode says so for `host`, verifying the server's certificate.
   std::shared_ptr<Peer> connect(const std::string& host, std::uint16_t port,
                                 ReconnectPolicy policy = {});
+
+  // Security (call before listen() and connect()). Throws std::invalid_argument for unreadable
+  // files or a certificate that does not match its key.
+  void set_tls(const TlsOptions& options);
+  void set_token(std::string token);  // sent in every CONNECT this endpoint makes (<= 256 bytes)
+  void set_access_policy(std::shared_ptr<const AccessPolicy> policy);
 
   std::uint64_t add_listener(ConnectionListener listener);
   // Once this returns the listener is not running and never runs again (a listener may remove
   // itself). Thread-safe.
   void remove_listener(std::uint64_t id);
-  void set_acceptor(Connection::Acceptor acceptor);  // call before listen()
+  // An extra admission check after the connection limit and the AccessPolicy; call before listen().
+  void set_acceptor(Connection::Acceptor acceptor);
   void set_local_pun(std::string pun);  // defaults to "<address>:<port>" of the socket
   std::string local_pun() const;
 
@@ -139,7 +153,10 @@ class ConnectionManager final : public MessageHandler {
   struct Acceptor;
   void accept_next(const std::shared_ptr<Acceptor>& acceptor);
   std::shared_ptr<Connection> adopt(asio::ip::tcp::socket socket, ConnectionRole role,
-                                    const std::shared_ptr<Peer>& owner);
+                                    const std::shared_ptr<Peer>& owner, bool tls);
+  Admission admit(const ConnectRequest& request);
+  bool wants_tls(const std::string& host) const;
+  std::shared_ptr<asio::ssl::context> client_context();
   void notify(const ConnectionEvent& event);
   void shutdown_on_io();
 
@@ -151,6 +168,11 @@ class ConnectionManager final : public MessageHandler {
   mutable std::mutex mutex_;
   std::string local_pun_;
   Connection::Acceptor accept_policy_;
+  TlsOptions tls_options_;
+  std::shared_ptr<asio::ssl::context> server_tls_;  // null until a certificate is configured
+  std::shared_ptr<asio::ssl::context> client_tls_;  // made on the first TLS connect
+  std::string token_;
+  std::shared_ptr<const AccessPolicy> access_;
   std::vector<std::shared_ptr<Acceptor>> acceptors_;
   std::unordered_map<std::uint64_t, std::shared_ptr<Connection>> connections_;
   std::unordered_map<std::uint64_t, std::weak_ptr<Peer>> owners_;

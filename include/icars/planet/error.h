@@ -22,6 +22,7 @@ enum class ErrorKind : std::uint8_t {
   timeout = 5,        // No reply within the call's deadline.
   bad_data = 6,       // A message could not be decoded (wrong types, truncated, garbage).
   refused = 7,        // The server denied the connection (CONNECT_ACK 0xFF + reason).
+  denied = 8,         // The peer may not call that servant path (its access policy).
 };
 
 std::string_view to_string(ErrorKind kind) noexcept;

@@ -23,6 +23,7 @@
 #include <chrono>
 #include <exception>
 #include <memory>
+#include <mutex>
 #include <semaphore>
 #include <string>
 #include <tuple>
@@ -44,6 +45,54 @@ template <>
 struct CompletionSignature<void> {
   using type = void(std::exception_ptr);
 };
+
+// Hears of the two-way calls sent through a proxy that carries it (Proxy::set_observer), so a
+// caller can keep a record of what it asked and how each request ended, to be matched with the
+// callee's record by request id. Called on the calling thread and on the thread that completes
+// the call: it must be thread-safe and must not block.
+class CallObserver {
+ public:
+  virtual ~CallObserver() = default;
+  // The request left as request `request_id` of this communicator.
+  virtual void sent(std::uint32_t request_id, const std::string& path, std::string_view method) = 0;
+  // Exactly once per call, after `sent`: `error` is null when a well-formed reply arrived. A
+  // call that could not be sent at all (the link is down) ends with request id 0 and no `sent`.
+  virtual void ended(std::uint32_t request_id, const std::string& path, std::string_view method,
+                     const std::exception_ptr& error) = 0;
+};
+
+namespace detail {
+// Orders an observed call's `sent` before its `ended`: the reply may complete the call on the
+// io thread before start_call has returned the request id to the calling thread.
+class ObservedCall {
+ public:
+  ObservedCall(std::shared_ptr<CallObserver> observer, std::string path, std::string_view method)
+      : observer_(std::move(observer)), path_(std::move(path)), method_(method) {}
+  void started(std::uint32_t request_id) {
+    std::lock_guard lock(mutex_);
+    id_ = request_id;
+    started_ = true;
+    if (request_id != 0) observer_->sent(request_id, path_, method_);
+    if (ended_) observer_->ended(id_, path_, method_, error_);
+  }
+  void finished(const std::exception_ptr& error) {
+    std::lock_guard lock(mutex_);
+    ended_ = true;
+    error_ = error;
+    if (started_) observer_->ended(id_, path_, method_, error_);
+  }
+
+ private:
+  std::shared_ptr<CallObserver> observer_;
+  std::string path_;
+  std::string_view method_;  // an Operation's name: a string literal
+  std::mutex mutex_;
+  std::uint32_t id_ = 0;
+  bool started_ = false;
+  bool ended_ = false;
+  std::exception_ptr error_;
+};
+}  // namespace detail
 
 class Proxy {
  public:
@@ -85,6 +134,8 @@ class Proxy {
   }
   // Sets the deadline of later calls through this proxy (typed stubs keep their type).
   void set_timeout(std::chrono::milliseconds timeout) { timeout_ = timeout; }
+  // Reports later two-way calls through this proxy and its copies to `observer` (null: none).
+  void set_observer(std::shared_ptr<CallObserver> observer) { observer_ = std::move(observer); }
 
   // Synchronous call: blocks the calling thread until the reply, an error or the timeout.
   // Calling it on the communicator's io thread throws (it would deadlock); use async_call.
@@ -102,8 +153,9 @@ class Proxy {
       std::conditional_t<std::is_void_v<R>, char, R> value{};
     } state;
     auto request = encode_request(RmiCode::call, op.name(), args...);
+    auto observed = observe(op.name());
     const std::uint32_t id = communicator_->start_call(
-        *link_, std::move(request), timeout_, [&state](std::exception_ptr e, Reader* r) {
+        *link_, std::move(request), timeout_, [&state, observed](std::exception_ptr e, Reader* r) {
           if (!e) {
             try {
               if constexpr (std::is_void_v<R>) {
@@ -115,9 +167,11 @@ class Proxy {
               e = std::current_exception();
             }
           }
+          if (observed) observed->finished(e);
           state.error = e;
           state.done.release();
         });
+    if (observed) observed->started(id);
     // The deadline sweep fails the call at its deadline; the extra second only guards
     // against a stalled io thread.
     if (!state.done.try_acquire_for(timeout_ + std::chrono::seconds(1))) {
@@ -142,9 +196,10 @@ class Proxy {
               [&](const A&... a) { return encode_request(RmiCode::call, name, a...); }, call_args);
           auto work = asio::make_work_guard(
               asio::get_associated_executor(handler, communicator_->executor()));
-          communicator_->start_call(
+          auto observed = observe(name);
+          const std::uint32_t id = communicator_->start_call(
               *link_, std::move(request), timeout_,
-              [handler = std::move(handler), work = std::move(work), translator](
+              [handler = std::move(handler), work = std::move(work), translator, observed](
                   std::exception_ptr e, Reader* r) mutable {
                 std::conditional_t<std::is_void_v<R>, char, R> value{};
                 if (e) e = translate(translator, e);
@@ -159,6 +214,7 @@ class Proxy {
                     e = std::current_exception();
                   }
                 }
+                if (observed) observed->finished(e);
                 auto ex = work.get_executor();
                 asio::post(ex, [handler = std::move(handler), e, value = std::move(value),
                                 work = std::move(work)]() mutable {
@@ -170,6 +226,7 @@ class Proxy {
                   }
                 });
               });
+          if (observed) observed->started(id);
         },
         token, std::move(args));
   }
@@ -199,6 +256,11 @@ class Proxy {
     } catch (...) {
       return e;
     }
+  }
+
+  std::shared_ptr<detail::ObservedCall> observe(std::string_view method) const {
+    if (!observer_) return nullptr;
+    return std::make_shared<detail::ObservedCall>(observer_, path_, method);
   }
 
   template <class... A>
@@ -236,6 +298,7 @@ class Proxy {
   std::shared_ptr<Link> link_;
   std::string path_;
   std::chrono::milliseconds timeout_{0};
+  std::shared_ptr<CallObserver> observer_;
 };
 
 }  // namespace icars::planet

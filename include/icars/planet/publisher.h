@@ -28,8 +28,9 @@
 namespace icars::planet {
 
 struct PublisherOptions {
-  std::size_t max_backlog_bytes = 1u << 20;
-  std::chrono::milliseconds stall_timeout{10000};
+  std::size_t max_backlog_bytes = 1u << 20;        // per subscriber: unwritten bytes before drops
+  std::chrono::milliseconds stall_timeout{10000};  // over the backlog this long: unsubscribed
+  std::size_t max_subscribers = 1024;  // more subscribe() calls fail with Error(overloaded)
 };
 
 struct SubscriberInfo {
@@ -81,7 +82,9 @@ class Publisher {
   Publisher(const OneWay<A...>& callback, PublisherOptions options = {})
       : fanout_(std::string(callback.name()), options) {}
 
-  // Adds the listener `listener` names; returns its subscription id.
+  // Adds the listener `listener` names; returns its subscription id. Throws Error(overloaded)
+  // when `max_subscribers` are subscribed already (a servant's subscribe operation then fails
+  // with that error at the caller).
   std::uint64_t subscribe(const Proxy& listener) {
     if (!listener.bound()) throw Error(ErrorKind::failed, "cannot subscribe an unbound proxy");
     return fanout_.subscribe(listener.link(), listener.path());

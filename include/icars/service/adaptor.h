@@ -32,6 +32,9 @@ class Adaptor : public Service {
   void bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link);
   // The device's link is gone: the service becomes unavailable until the next bind.
   void unbind();
+  // Reports the two-way calls made through proxy() from the next bind on (the server's record
+  // of the commands it sent to devices); null: none.
+  void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
 
  protected:
   // Hooks for subclasses, called with the adaptor's lock released.
@@ -39,10 +42,13 @@ class Adaptor : public Service {
   virtual void on_unbind() {}
   void log_failure(planet::Communicator& communicator, std::string_view what,
                    std::exception_ptr error) const;
+  std::shared_ptr<planet::CallObserver> call_observer() const;
 
  private:
   std::string interface_id_;
   std::string path_;
+  mutable std::mutex observer_mutex_;
+  std::shared_ptr<planet::CallObserver> call_observer_;
 };
 
 // An adaptor whose capability is the IDL interface of stub `Prx`.
@@ -57,8 +63,10 @@ class AdaptorOf : public Adaptor {
 
  protected:
   void on_bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link) override {
+    auto observer = call_observer();
     std::lock_guard lock(mutex_);
     proxy_ = Prx(communicator, link, path());
+    proxy_.set_observer(std::move(observer));
   }
 
  private:

@@ -57,6 +57,9 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
 
   // Devices registered and connected right now.
   std::size_t connected_devices() const;
+  // The calls through every adaptor bound from now on are reported to `observer` (see
+  // planet::CallObserver); null: none. Set it before devices register.
+  void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
 
  private:
   struct Registered {
@@ -72,6 +75,7 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
   std::uint64_t listener_ = 0;
   mutable std::mutex mutex_;
   std::map<std::string, Registered> devices_;
+  std::shared_ptr<planet::CallObserver> call_observer_;
 };
 
 }  // namespace icars::service

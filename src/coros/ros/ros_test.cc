@@ -121,10 +121,12 @@ struct PublishingAgent {
 
 AgentConfiguration agent_config(const std::string& id, const std::string& role,
                                 std::uint16_t broadcast_port) {
+  static const auto key = icars::coros::FleetKey::generate();  // one fleet per test process
   AgentConfiguration config;
   config.id = id;
   config.role = role;
   config.transport.broadcast_port = broadcast_port;
+  config.transport.key = key;
   config.hello_period = 100ms;
   config.neighbor_expiry = 3000ms;  // generous: ASan builds on a loaded 2-core machine
   config.bid_window = 1500ms;       // an upper bound; auctions close when all have bid

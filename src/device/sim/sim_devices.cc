@@ -47,9 +47,10 @@ class EffectReporter {
  public:
   EffectReporter(std::string device, const SimContext& context)
       : device_(std::move(device)), world_(context.world), observer_(context.effects) {}
-  void operator()(std::string what, std::string value) const {
+  void operator()(std::string what, std::string value, const p::Current& current) const {
     if (!observer_) return;
-    observer_(DeviceEffect{world_.clock().now(), device_, std::move(what), std::move(value)});
+    observer_(DeviceEffect{world_.clock().now(), device_, std::move(what), std::move(value),
+                           current.request_id});
   }
 
  private:
@@ -63,28 +64,28 @@ std::string on_off(bool on) { return on ? "on" : "off"; }
 class SimTV final : public home::TVControlServant {
  public:
   SimTV(std::string id, const SimContext& context) : report_(std::move(id), context) {}
-  void set_power(bool on, const p::Current&) override {
+  void set_power(bool on, const p::Current& current) override {
     {
       std::lock_guard lock(mutex_);
       state_.on = on;
     }
-    report_("power", on_off(on));
+    report_("power", on_off(on), current);
   }
-  void set_channel(std::int32_t channel, const p::Current&) override {
+  void set_channel(std::int32_t channel, const p::Current& current) override {
     check_range("channel", channel, 1, 99);
     {
       std::lock_guard lock(mutex_);
       state_.channel = channel;
     }
-    report_("channel", std::to_string(channel));
+    report_("channel", std::to_string(channel), current);
   }
-  void set_volume(std::int32_t volume, const p::Current&) override {
+  void set_volume(std::int32_t volume, const p::Current& current) override {
     check_range("volume", volume, 0, 100);
     {
       std::lock_guard lock(mutex_);
       state_.volume = volume;
     }
-    report_("volume", std::to_string(volume));
+    report_("volume", std::to_string(volume), current);
   }
   home::TVState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -100,20 +101,20 @@ class SimTV final : public home::TVControlServant {
 class SimLight final : public home::LightServant {
  public:
   SimLight(std::string id, const SimContext& context) : report_(std::move(id), context) {}
-  void set_power(bool on, const p::Current&) override {
+  void set_power(bool on, const p::Current& current) override {
     {
       std::lock_guard lock(mutex_);
       state_.on = on;
     }
-    report_("power", on_off(on));
+    report_("power", on_off(on), current);
   }
-  void set_intensity(std::int32_t percent, const p::Current&) override {
+  void set_intensity(std::int32_t percent, const p::Current& current) override {
     check_range("intensity", percent, 0, 100);
     {
       std::lock_guard lock(mutex_);
       state_.intensity = percent;
     }
-    report_("intensity", std::to_string(percent));
+    report_("intensity", std::to_string(percent), current);
   }
   home::LightState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -129,34 +130,34 @@ class SimLight final : public home::LightServant {
 class SimSpeaker final : public home::SpeakerServant {
  public:
   SimSpeaker(std::string id, const SimContext& context) : report_(std::move(id), context) {}
-  void play(const std::string& track, const p::Current&) override {
+  void play(const std::string& track, const p::Current& current) override {
     {
       std::lock_guard lock(mutex_);
       state_.playing = track;
     }
-    report_("playing", track);
+    report_("playing", track, current);
   }
-  void stop(const p::Current&) override {
+  void stop(const p::Current& current) override {
     {
       std::lock_guard lock(mutex_);
       state_.playing.clear();
     }
-    report_("stopped", "");
+    report_("stopped", "", current);
   }
-  void set_volume(std::int32_t volume, const p::Current&) override {
+  void set_volume(std::int32_t volume, const p::Current& current) override {
     check_range("volume", volume, 0, 100);
     {
       std::lock_guard lock(mutex_);
       state_.volume = volume;
     }
-    report_("volume", std::to_string(volume));
+    report_("volume", std::to_string(volume), current);
   }
-  void speak(const std::string& text, const p::Current&) override {
+  void speak(const std::string& text, const p::Current& current) override {
     {
       std::lock_guard lock(mutex_);
       state_.last_spoken = text;
     }
-    report_("spoke", text);
+    report_("spoke", text, current);
   }
   home::SpeakerState state(const p::Current&) override {
     std::lock_guard lock(mutex_);
@@ -251,8 +252,9 @@ class SimMicrophone final : public home::MicrophoneServant {
 
 class SimWheels final : public home::WheelsServant {
  public:
-  SimWheels(std::string robot, SimContext context)
-      : robot_(std::move(robot)), world_(context.world), listener_(context.world) {
+  SimWheels(std::string robot, std::string device, SimContext context)
+      : robot_(std::move(robot)), world_(context.world), report_(std::move(device), context),
+        listener_(context.world) {
     listener_.set(world_.on_robot_pose(
         [this](const std::string& which, const sim::Pose& pose, bool moving) {
           if (which != robot_) return;
@@ -265,22 +267,29 @@ class SimWheels final : public home::WheelsServant {
           publish(pose, moving, false);
         }));
   }
-  double go_to(const home::Pose& target, const p::Current&) override {
-    return move({target.x, target.y}, fmt::format("({:.2f}, {:.2f})", target.x, target.y));
+  double go_to(const home::Pose& target, const p::Current& current) override {
+    const auto name = fmt::format("({:.2f}, {:.2f})", target.x, target.y);
+    const double length = move({target.x, target.y}, name);
+    report_("going_to", name, current);
+    return length;
   }
-  double go_to_waypoint(const std::string& waypoint, const p::Current&) override {
+  double go_to_waypoint(const std::string& waypoint, const p::Current& current) override {
     const auto at = world_.house().locate(waypoint);
     if (!at) throw home::UnknownTarget(waypoint, "no waypoint, furniture or room '" + waypoint + "'");
-    return move(*at, waypoint);
+    const double length = move(*at, waypoint);
+    report_("going_to", waypoint, current);
+    return length;
   }
-  void stop(const p::Current&) override {
+  void stop(const p::Current& current) override {
     forget_goal();
     world_.stop_robot(robot_);
+    report_("halted", "", current);
   }
   // The position event that follows (from the clock) has the new heading, not moving.
-  void turn_to(double theta, const p::Current&) override {
+  void turn_to(double theta, const p::Current& current) override {
     forget_goal();
     world_.turn_robot(robot_, theta);
+    report_("turned", fmt::format("{:.2f}", theta), current);
   }
   home::Pose position(const p::Current&) override {
     const auto pose = world_.robot_pose(robot_);
@@ -319,6 +328,7 @@ class SimWheels final : public home::WheelsServant {
 
   std::string robot_;
   sim::World& world_;
+  EffectReporter report_;
   p::Publisher<home::PositionEvent> positions_{home::PositionListener::on_position};
   std::mutex mutex_;
   std::optional<sim::Point> goal_;  // where the current move ends
@@ -560,7 +570,7 @@ std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext 
                     number_param(spec, "threshold_db", kHearingThresholdDb)));
   } else if (t == "Wheels") {
     if (spec.carrier.empty()) throw std::invalid_argument("wheels " + spec.id + " belong to no robot");
-    device->add("wheels", std::make_shared<SimWheels>(spec.carrier, context));
+    device->add("wheels", std::make_shared<SimWheels>(spec.carrier, spec.id, context));
   } else if (t == "Camera") {
     device->add("camera", std::make_shared<SimCamera>(spec.id, context,
                                                       number_param(spec, "range", 6.0)));

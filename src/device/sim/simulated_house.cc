@@ -8,6 +8,8 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   planet::CommunicatorOptions comm;
   comm.name = "devices";
   comm.pun = options_.pun;
+  comm.tls = options_.tls;
+  comm.token = options_.token;
   comm.logger = options_.logger;
   communicator_ = std::make_unique<planet::Communicator>(comm);
   manager_ = std::make_unique<DeviceManager>(*communicator_);

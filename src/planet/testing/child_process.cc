@@ -83,6 +83,19 @@ int ChildProcess::wait() {
   return status;
 }
 
+std::optional<int> ChildProcess::wait_for(std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    int status = 0;
+    if (::waitpid(pid_, &status, WNOHANG) == pid_) {
+      reaped_ = true;
+      return status;
+    }
+    if (std::chrono::steady_clock::now() >= deadline) return std::nullopt;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
 std::string event_subscriber_path() { return PLANET_EVENT_SUBSCRIBER_PATH; }
 
 TestServer start_test_server(std::vector<std::string> extra_args) {

@@ -31,6 +31,8 @@ class ChildProcess {
   std::optional<std::string> read_line(std::chrono::milliseconds timeout);
   // Waits for exit and returns the raw wait status.
   int wait();
+  // Like wait(), but gives up after `timeout` (nullopt: still running).
+  std::optional<int> wait_for(std::chrono::milliseconds timeout);
 
  private:
   pid_t pid_ = -1;

@@ -1,0 +1,208 @@
+// A secured home as a user sets it up (docs/security.md): `icars token` and make-certs.sh make
+// the credentials, `icars run --access` admits only the device managers it lists, over TLS with
+// client certificates too. Real processes throughout.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <unistd.h>
+#include <vector>
+
+#include "child_process.h"
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+namespace {
+
+const std::string kIcars = ICARS_BINARY;
+const std::string kSource = ICARS_SOURCE_DIR;
+const std::string kDeviceManager = ICARS_DEVICE_MANAGER_BINARY;
+const std::string kHouse = kSource + "/houses/paper_house.xml";
+const std::string kPolicy = kSource + "/examples/smart_home/paper_home.xml";
+
+class Scratch {
+ public:
+  Scratch() : dir_(fs::temp_directory_path() / ("icars-security-" + std::to_string(::getpid()))) {
+    fs::create_directories(dir_);
+  }
+  ~Scratch() {
+    std::error_code ignored;
+    fs::remove_all(dir_, ignored);
+  }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  std::string write(const std::string& name, const std::string& text) const {
+    std::ofstream(path(name)) << text;
+    return path(name);
+  }
+
+ private:
+  fs::path dir_;
+};
+
+// All lines a short-lived command prints on stdout, and its exit status.
+std::pair<std::vector<std::string>, int> run_command(const std::vector<std::string>& argv) {
+  planet_test::ChildProcess p(argv);
+  std::vector<std::string> lines;
+  while (auto line = p.read_line(60s)) lines.push_back(*line);
+  const int status = p.wait();
+  return {lines, WIFEXITED(status) ? WEXITSTATUS(status) : -1};
+}
+
+// Starts `icars run --external` with `extra` options and returns it with its port.
+std::pair<std::unique_ptr<planet_test::ChildProcess>, std::string> start_mediator(
+    const std::vector<std::string>& extra, const std::string& trace) {
+  std::vector<std::string> argv = {kIcars, "run", kPolicy, "--world", kHouse, "--external",
+                                   "--listen", "127.0.0.1:0", "--until", "18:30",
+                                   "--trace", trace, "--quiet"};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  auto mediator = std::make_unique<planet_test::ChildProcess>(argv);
+  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
+  while (auto line = mediator->read_line(60s)) {
+    if (line->starts_with(prefix)) {
+      return {std::move(mediator), line->substr(prefix.size(), line->find(';') - prefix.size())};
+    }
+  }
+  return {std::move(mediator), ""};
+}
+
+std::unique_ptr<planet_test::ChildProcess> start_device_manager(const std::string& port,
+                                                                const std::vector<std::string>& extra) {
+  std::vector<std::string> argv = {kDeviceManager, "--house", kHouse, "--server",
+                                   "127.0.0.1:" + port, "--speedup", "600"};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return std::make_unique<planet_test::ChildProcess>(argv);
+}
+
+// The first line of `p` starting with one of `prefixes`; empty at EOF or after 60 s of silence.
+std::string first_line_starting(planet_test::ChildProcess& p, const std::vector<std::string>& prefixes) {
+  while (auto line = p.read_line(60s)) {
+    for (const auto& prefix : prefixes) {
+      if (line->starts_with(prefix)) return *line;
+    }
+  }
+  return {};
+}
+
+// Waits for the mediator's summary and exit; true when it ran to the end with status 0 and its
+// trace shows the TV switched on by voice through the device manager.
+::testing::AssertionResult ran_to_the_end(planet_test::ChildProcess& mediator, const std::string& trace) {
+  bool summary = false;
+  while (auto line = mediator.read_line(120s)) summary |= line->starts_with("=== summary");
+  const int status = mediator.wait();
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !summary) {
+    return ::testing::AssertionFailure() << "mediator status " << status << ", summary " << summary;
+  }
+  std::ifstream in(trace);
+  for (std::string line; std::getline(in, line);) {
+    const json j = json::parse(line);
+    // A failed call's record says "ok": false; a successful one has no "ok".
+    if (j.value("kind", "") == "call" && j.value("call", "") == "tv.tv_control.set_power(true)" &&
+        j.value("ok", true)) {
+      return ::testing::AssertionSuccess();
+    }
+  }
+  return ::testing::AssertionFailure() << "the TV was never switched on";
+}
+
+TEST(IcarsSecurity, OnlyADeviceManagerWithAListedTokenRegisters) {
+  Scratch scratch;
+  auto [made, status] = run_command({kIcars, "token", "living-room"});
+  ASSERT_EQ(status, 0);
+  ASSERT_EQ(made.size(), 2u);
+  const std::string token = made[0];
+  EXPECT_EQ(token.size(), 64u);
+  const json entry = json::parse(made[1]);
+  EXPECT_EQ(entry["name"], "living-room");
+  EXPECT_EQ(entry["may_call"], json({"/sf/registry", "/sf/listeners/*"}));
+  EXPECT_EQ(entry["token_sha256"].get<std::string>().size(), 64u);
+  const auto access = scratch.write("access.json", json{{"principals", json::array({entry})}}.dump());
+  const auto good_token = scratch.write("living-room.token", token + "\n");
+  const auto wrong_token = scratch.write("guess.token", std::string(64, 'a') + "\n");
+
+  const auto trace = scratch.path("trace.jsonl");
+  auto [mediator, port] = start_mediator({"--access", access}, trace);
+  ASSERT_FALSE(port.empty());
+
+  // No token: denied in CONNECT with the reason; it never registers a device.
+  auto anonymous = start_device_manager(port, {});
+  const auto seen = first_line_starting(*anonymous, {"LINK DOWN", "REGISTERED"});
+  EXPECT_NE(seen.find("LINK DOWN"), std::string::npos) << seen;
+  EXPECT_NE(seen.find("authentication required"), std::string::npos) << seen;
+  anonymous.reset();
+
+  // A guessed token: denied too.
+  auto guesser = start_device_manager(port, {"--token-file", wrong_token});
+  const auto guessed = first_line_starting(*guesser, {"LINK DOWN", "REGISTERED"});
+  EXPECT_NE(guessed.find("authentication failed"), std::string::npos) << guessed;
+  guesser.reset();
+
+  // The listed token: registered, and the evening runs with devices called and events delivered.
+  auto living_room = start_device_manager(port, {"--token-file", good_token});
+  const auto registered = first_line_starting(*living_room, {"LINK DOWN", "REGISTERED"});
+  EXPECT_TRUE(registered.starts_with("REGISTERED 1 ")) << registered;
+  EXPECT_TRUE(ran_to_the_end(*mediator, trace));
+}
+
+TEST(IcarsSecurity, MutualTlsAdmitsTheHomesCertificatesOnly) {
+  Scratch scratch;
+  const auto home = scratch.path("home");
+  const auto stranger = scratch.path("stranger");
+  ASSERT_EQ(run_command({"/bin/bash", kSource + "/scripts/make-certs.sh", home, "--client", "living-room"}).second, 0);
+  ASSERT_EQ(run_command({"/bin/bash", kSource + "/scripts/make-certs.sh", stranger, "--client", "living-room"}).second, 0);
+  const auto access = scratch.write(
+      "access.json",
+      R"({"principals": [{"name": "living-room", "certificate": "living-room",
+                          "may_call": ["/sf/registry", "/sf/listeners/*"]}]})");
+  const auto trace = scratch.path("trace.jsonl");
+  auto [mediator, port] = start_mediator(
+      {"--tls", "on", "--tls-ca", home + "/ca.pem", "--tls-cert", home + "/server.pem", "--tls-key",
+       home + "/server.key", "--require-client-cert", "--access", access},
+      trace);
+  ASSERT_FALSE(port.empty());
+
+  // A certificate with the right name from another CA fails the TLS handshake.
+  auto forger = start_device_manager(
+      port, {"--tls", "on", "--tls-ca", home + "/ca.pem", "--tls-cert", stranger + "/living-room.pem",
+             "--tls-key", stranger + "/living-room.key"});
+  const auto forged = first_line_starting(*forger, {"LINK DOWN", "REGISTERED"});
+  EXPECT_TRUE(forged.starts_with("LINK DOWN")) << forged;
+  forger.reset();
+
+  // A client that does not trust the server's CA refuses to talk to it.
+  auto distrustful = start_device_manager(
+      port, {"--tls", "on", "--tls-ca", stranger + "/ca.pem", "--tls-cert", home + "/living-room.pem",
+             "--tls-key", home + "/living-room.key"});
+  const auto refused = first_line_starting(*distrustful, {"LINK DOWN", "REGISTERED"});
+  EXPECT_NE(refused.find("certificate verify failed"), std::string::npos) << refused;
+  distrustful.reset();
+
+  auto living_room = start_device_manager(
+      port, {"--tls", "on", "--tls-ca", home + "/ca.pem", "--tls-cert", home + "/living-room.pem",
+             "--tls-key", home + "/living-room.key"});
+  const auto registered = first_line_starting(*living_room, {"LINK DOWN", "REGISTERED"});
+  EXPECT_TRUE(registered.starts_with("REGISTERED 1 ")) << registered;
+  EXPECT_TRUE(ran_to_the_end(*mediator, trace));
+}
+
+TEST(IcarsSecurity, BrokenSecurityConfigurationStopsWithExitCodeTwo) {
+  Scratch scratch;
+  const auto bad_access = scratch.write("bad.json", R"({"principals": [{"name": "x", "token_sha256": "nothex"}]})");
+  auto [out, status] = run_command({kIcars, "run", kPolicy, "--world", kHouse, "--access", bad_access});
+  EXPECT_EQ(status, 2);
+  // Listening on every interface without a certificate is refused, not silently plaintext.
+  std::tie(out, status) = run_command({kIcars, "run", kPolicy, "--world", kHouse, "--listen", "0.0.0.0:0"});
+  EXPECT_EQ(status, 2);
+  auto [made, token_status] = run_command({kIcars, "token", "bad", "--may-call", "devices"});
+  EXPECT_EQ(token_status, 2);
+  const auto empty = scratch.write("empty.token", "\n");
+  auto [dm_out, dm_status] = run_command({kDeviceManager, "--house", kHouse, "--token-file", empty});
+  EXPECT_EQ(dm_status, 2);
+}
+
+}  // namespace
