@@ -1,5 +1,7 @@
 #include "icars/planet/security.h"
 
+#include <spdlog/spdlog.h>
+
 #include <fmt/format.h>
 #include <openssl/evp.h>
 #include <openssl/rand.h>
@@ -10,6 +12,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <stdexcept>
+
+#include "icars/planet/connection_manager.h"
 
 namespace icars::planet {
 
@@ -36,6 +40,16 @@ void check_pattern(std::string_view pattern, const std::string& principal) {
     throw std::invalid_argument(fmt::format(
         "principal '{}': path pattern '{}' must be \"*\", a path starting with '/', or such a "
         "path ending in \"/*\"",
+        principal, pattern));
+  }
+}
+
+void check_device_pattern(std::string_view pattern, const std::string& principal) {
+  const auto star = pattern.find('*');
+  if (pattern.empty() || (star != std::string_view::npos && star != pattern.size() - 1)) {
+    throw std::invalid_argument(fmt::format(
+        "principal '{}': device pattern '{}' must be \"*\", a device id, or an id prefix ending "
+        "in '*'",
         principal, pattern));
   }
 }
@@ -69,6 +83,42 @@ bool Principal::may_call_path(std::string_view path) const {
                      [&](const std::string& p) { return matches_path_pattern(p, path); });
 }
 
+bool matches_device_pattern(std::string_view pattern, std::string_view device_id) {
+  if (pattern.ends_with('*')) return device_id.starts_with(pattern.substr(0, pattern.size() - 1));
+  return pattern == device_id;
+}
+
+bool Principal::may_register(std::string_view device_id) const {
+  return std::any_of(devices.begin(), devices.end(),
+                     [&](const std::string& p) { return matches_device_pattern(p, device_id); });
+}
+
+std::vector<std::string> reload_access_policy(ConnectionManager& manager, const AccessPolicy& previous,
+                                              std::shared_ptr<const AccessPolicy> next) {
+  std::vector<std::string> changed;
+  for (const auto& p : previous.principals()) {
+    const Principal* now = next ? next->find(p.name) : nullptr;
+    if (!now || !(*now == p)) changed.push_back(p.name);
+  }
+  manager.set_access_policy(std::move(next));
+  for (const auto& c : manager.connections()) {
+    const auto principal = c->principal();
+    if (principal && std::find(changed.begin(), changed.end(), principal->name) != changed.end()) {
+      manager.log().warn("closing {}: access of principal '{}' revoked or changed", c->describe(),
+                         principal->name);
+      c->close(fmt::format("access of principal '{}' revoked or changed", principal->name));
+    }
+  }
+  return changed;
+}
+
+const Principal* AccessPolicy::find(std::string_view name) const {
+  for (const auto& p : principals_) {
+    if (p.name == name) return &p;
+  }
+  return nullptr;
+}
+
 void AccessPolicy::add(Principal principal) {
   if (principal.name.empty()) throw std::invalid_argument("a principal needs a name");
   for (const auto& p : principals_) {
@@ -87,6 +137,11 @@ void AccessPolicy::add(Principal principal) {
         principal.name));
   }
   for (const auto& p : principal.may_call) check_pattern(p, principal.name);
+  for (const auto& d : principal.devices) check_device_pattern(d, principal.name);
+  if (principal.max_devices == 0 && !principal.devices.empty()) {
+    throw std::invalid_argument(fmt::format(
+        "principal '{}': max_devices is 0 but it lists devices it may register", principal.name));
+  }
   principals_.push_back(std::move(principal));
 }
 
@@ -109,10 +164,11 @@ AccessPolicy AccessPolicy::parse(std::string_view text, const std::string& file_
     for (const auto& entry : doc["principals"]) {
       if (!entry.is_object()) throw std::invalid_argument("each principal must be an object");
       for (const auto& [key, value] : entry.items()) {
-        if (key != "name" && key != "token_sha256" && key != "certificate" && key != "may_call") {
+        if (key != "name" && key != "token_sha256" && key != "certificate" && key != "may_call" &&
+            key != "devices" && key != "max_devices") {
           throw std::invalid_argument(fmt::format(
               "unknown key \"{}\" in a principal (expected name, token_sha256, certificate, "
-              "may_call)",
+              "may_call, devices, max_devices)",
               key));
         }
       }
@@ -122,6 +178,15 @@ AccessPolicy AccessPolicy::parse(std::string_view text, const std::string& file_
       p.certificate_name = entry.value("certificate", "");
       if (entry.contains("may_call")) {
         p.may_call = entry["may_call"].get<std::vector<std::string>>();
+      }
+      if (entry.contains("devices")) p.devices = entry["devices"].get<std::vector<std::string>>();
+      if (entry.contains("max_devices")) {
+        const auto& max = entry["max_devices"];
+        if (!max.is_number_unsigned()) {
+          throw std::invalid_argument(fmt::format(
+              "principal '{}': max_devices must be a non-negative integer", p.name));
+        }
+        p.max_devices = max.get<std::size_t>();
       }
       policy.add(std::move(p));
     }

@@ -4,9 +4,10 @@
 
 namespace icars::service {
 
-ServiceFramework::ServiceFramework(planet::Communicator& communicator, AdaptorFactory adaptors)
+ServiceFramework::ServiceFramework(planet::Communicator& communicator, AdaptorFactory adaptors,
+                                   RegistryOptions options)
     : communicator_(communicator),
-      registry_(std::make_shared<DeviceRegistry>(communicator, container_, std::move(adaptors))),
+      registry_(std::make_shared<DeviceRegistry>(communicator, container_, std::move(adaptors), options)),
       composites_(std::make_unique<CompositeFactory>(container_)) {
   communicator_.adapter().add(std::string(device::kRegistryPath), registry_);
 }

@@ -49,8 +49,16 @@ struct Principal {
   // Path patterns: an exact path ("/sf/registry"), a prefix ending in "/*" ("/devices/*"
   // matches "/devices/tv/remote" and anything deeper), or "*" (every path).
   std::vector<std::string> may_call;
+  // Device id patterns this principal may register with a device registry: an exact id ("tv"),
+  // a prefix ending in '*' ("robot1_*"), or "*". Empty: none (an operator or an agent).
+  std::vector<std::string> devices{};
+  // Devices it may hold registered at once; a registration beyond it is refused.
+  std::size_t max_devices = 64;
 
   bool may_call_path(std::string_view path) const;
+  bool may_register(std::string_view device_id) const;
+  // The same credentials and permissions (a reloaded access file keeps such a principal's links).
+  bool operator==(const Principal&) const = default;
 };
 
 // The server's list of principals. Without an AccessPolicy a Communicator admits every client
@@ -64,6 +72,9 @@ class AccessPolicy {
   void add(Principal principal);
   const std::vector<Principal>& principals() const { return principals_; }
 
+  // The principal named `name`, or null.
+  const Principal* find(std::string_view name) const;
+
   // Reads an access file (JSON, docs/security.md). Throws std::runtime_error "<file>: <what>".
   static AccessPolicy load(const std::string& file);
   static AccessPolicy parse(std::string_view text, const std::string& file_name);
@@ -76,7 +87,18 @@ class AccessPolicy {
   std::vector<Principal> principals_;
 };
 
+class ConnectionManager;
+// Puts `next` in force for `manager`'s listeners (an access file reloaded on SIGHUP): the live
+// links of principals that `previous` had and `next` removes or changes are closed ("access
+// revoked"), so a removed principal is out at once and a changed one reconnects under its new
+// entry; links of unchanged principals stay up. Returns the names of the principals removed or
+// changed. Thread-safe.
+std::vector<std::string> reload_access_policy(ConnectionManager& manager, const AccessPolicy& previous,
+                                              std::shared_ptr<const AccessPolicy> next);
+
 bool matches_path_pattern(std::string_view pattern, std::string_view path);
+// Device id patterns: "*", "prefix*" or an exact id.
+bool matches_device_pattern(std::string_view pattern, std::string_view device_id);
 // Lower-case hex SHA-256 of `text`: what an access file stores instead of a token.
 std::string sha256_hex(std::string_view text);
 // A random token of `bytes` random bytes, hex-encoded (for `icars token`).

@@ -7,9 +7,12 @@
 // the server communicator's io thread and must not block.
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "device.planet.h"
 #include "home.planet.h"
@@ -19,6 +22,29 @@
 
 namespace icars::service {
 
+// The state a device keeps that commands set, as typed named values ({"on": true,
+// "channel": 5, "volume": 25}); empty for a capability that keeps none.
+using DeviceState = planet::Properties;
+
+// One value that differs between what the mediator last had acknowledged and what a device
+// reports after it registered again.
+struct StateDifference {
+  std::string name;
+  planet::Value wanted;  // read from the device after the last acknowledged command
+  planet::Value found;   // read from the device when it came back
+};
+
+// What happened to a stateful capability when its device registered again.
+struct Restoration {
+  std::vector<StateDifference> differences;  // empty: the device kept its state
+  bool reapplied = false;                    // the wanted state was sent again
+  std::exception_ptr error;                  // reading or re-applying failed
+};
+
+// "channel 5 -> 1, on true -> false": the differences as a person reads them.
+std::string describe(const std::vector<StateDifference>& differences);
+std::string describe_value(const planet::Value& value);
+
 class Adaptor : public Service {
  public:
   Adaptor(std::string type, const df::DeviceInfo& device, const df::CapabilityInfo& capability);
@@ -26,6 +52,20 @@ class Adaptor : public Service {
 
   const std::string& interface_id() const { return interface_id_; }
   const std::string& path() const { return path_; }
+  const std::string& device_id() const { return device_; }
+  // The connection the capability is bound to (events are accepted only over it); 0: unbound.
+  std::uint64_t bound_connection() const { return bound_connection_.load(); }
+
+  // --- Device state across outages ---
+  // True when the capability keeps state that commands set (a TV, a light, a speaker).
+  virtual bool keeps_state() const { return false; }
+  // The state read from the device after the last acknowledged command; empty before one.
+  DeviceState acknowledged_state() const;
+  // After the device registered again: reads its state, compares it with the acknowledged one
+  // and, when they differ and `reapply`, sends the acknowledged state again. `done` runs once
+  // (on the io thread), with nothing to report (no differences) when no command was ever
+  // acknowledged.
+  void restore(bool reapply, std::function<void(Restoration)> done);
 
   // The capability is (again) reachable over `link`: rebinds, resubscribes, becomes available.
   // Called by the device registry on the server's io thread.
@@ -42,13 +82,35 @@ class Adaptor : public Service {
   virtual void on_unbind() {}
   void log_failure(planet::Communicator& communicator, std::string_view what,
                    std::exception_ptr error) const;
-  std::shared_ptr<planet::CallObserver> call_observer() const;
+  // The observer for this adaptor's proxy: the registry's (if any), and the adaptor's own
+  // record of acknowledged commands (stateful capabilities).
+  std::shared_ptr<planet::CallObserver> call_observer();
+  // Throws planet::Error(denied) unless `current` came over the link the capability is bound to:
+  // only a device's own device manager delivers its events.
+  void check_own_link(const planet::Current& current) const;
+
+  // Stateful capabilities implement these three (called on the io thread, never blocking).
+  // An operation that changes the state the device keeps.
+  virtual bool is_command(std::string_view) const { return false; }
+  virtual void read_state(std::function<void(std::exception_ptr, DeviceState)> done) {
+    done(nullptr, {});
+  }
+  virtual void apply_state(const DeviceState&, std::function<void(std::exception_ptr)> done) {
+    done(nullptr);
+  }
 
  private:
+  class CommandTracker;
+  void command_acknowledged();
+
   std::string interface_id_;
   std::string path_;
+  std::string device_;
+  std::atomic<std::uint64_t> bound_connection_{0};
   mutable std::mutex observer_mutex_;
   std::shared_ptr<planet::CallObserver> call_observer_;
+  DeviceState acknowledged_;
+  std::uint64_t reads_started_ = 0;  // a state read answers only if no later one started
 };
 
 // An adaptor whose capability is the IDL interface of stub `Prx`.
@@ -96,9 +158,27 @@ class SensorAdaptor : public AdaptorOf<Prx> {
                                   std::function<void(std::exception_ptr)> done) = 0;
   // Registers the listener servant's one operation.
   virtual void implement_listener(planet::Servant& servant) = 0;
-  void deliver(const Event& e) {
+  void deliver(const Event& e, const planet::Current& current) {
+    this->check_own_link(current);
     ++received_;
+    remember(e);
     events_.notify(e);
+  }
+  // Delivers `e` (a reading taken after the device came back) unless it says what the last
+  // event said: a change missed while the device was away reaches listeners.
+  void deliver_if_changed(const Event& e) {
+    if (!changed(e)) return;
+    ++received_;
+    remember(e);
+    events_.notify(e);
+  }
+  // Sensors whose current value can be read implement these: `reread` reads it and calls
+  // deliver_if_changed; `changed` compares a reading with the last event.
+  virtual void reread(const Prx&) {}
+  virtual bool changed(const Event&) const { return true; }
+  std::optional<Event> last_event() const {
+    std::lock_guard lock(last_mutex_);
+    return last_;
   }
 
   void on_bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link) override {
@@ -113,36 +193,69 @@ class SensorAdaptor : public AdaptorOf<Prx> {
     subscribe_listener(this->proxy(), ref, [weak = this->weak_from_this(), &communicator](
                                                std::exception_ptr e) {
       auto self = std::static_pointer_cast<SensorAdaptor>(weak.lock());
-      if (e && self) self->log_failure(communicator, "could not subscribe to its sensor", e);
+      if (!self) return;
+      if (e) {
+        self->log_failure(communicator, "could not subscribe to its sensor", e);
+      } else if (self->last_event()) {
+        self->reread(self->proxy());  // it came back: what changed while it was away
+      }
     });
   }
 
  private:
+  void remember(const Event& e) {
+    std::lock_guard lock(last_mutex_);
+    last_ = e;
+  }
+
   std::string listener_path() const { return "/sf/listeners/" + this->id(); }
 
   planet::Communicator* communicator_ = nullptr;
+  mutable std::mutex last_mutex_;
+  std::optional<Event> last_;
   Listeners<Event> events_;
   std::atomic<std::uint64_t> received_{0};
 };
 
 // --- The adaptors of the house's capabilities (idl/home.idl) ----------------------------------
 
+// The stateful house adaptors remember the TV's, light's and speaker's state after every
+// acknowledged command and restore it when the device comes back (Adaptor::restore).
 class TVControlService final : public AdaptorOf<home::TVControlPrx> {
  public:
   TVControlService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : AdaptorOf("TVControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
+  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
 };
 
 class LightService final : public AdaptorOf<home::LightPrx> {
  public:
   LightService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : AdaptorOf("LightControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
+  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
 };
 
 class SpeakerService final : public AdaptorOf<home::SpeakerPrx> {
  public:
   SpeakerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : AdaptorOf("AudioControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  // What it plays and how loud; what it last said is not state to restore.
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
+  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
 };
 
 class SpeechRecognizerService final : public AdaptorOf<home::SpeechRecognizerPrx> {
@@ -183,7 +296,7 @@ class SoundSensor final : public SensorAdaptor<home::MicrophonePrx, home::SoundL
     mic.subscribe_async(l, std::move(done));
   }
   void implement_listener(planet::Servant& s) override {
-    s.implement(home::SoundListener::on_sound, [this](const home::SoundEvent& e) { deliver(e); });
+    s.implement(home::SoundListener::on_sound, [this](const home::SoundEvent& e, const planet::Current& c) { deliver(e, c); });
   }
 };
 
@@ -201,7 +314,7 @@ class NavigationService final
   }
   void implement_listener(planet::Servant& s) override {
     s.implement(home::PositionListener::on_position,
-                [this](const home::PositionEvent& e) { deliver(e); });
+                [this](const home::PositionEvent& e, const planet::Current& c) { deliver(e, c); });
   }
 };
 
@@ -217,7 +330,12 @@ class MotionSensorService final
     sensor.subscribe_async(l, std::move(done));
   }
   void implement_listener(planet::Servant& s) override {
-    s.implement(home::MotionListener::on_motion, [this](const home::MotionEvent& e) { deliver(e); });
+    s.implement(home::MotionListener::on_motion, [this](const home::MotionEvent& e, const planet::Current& c) { deliver(e, c); });
+  }
+  void reread(const home::MotionSensorPrx& sensor) override;
+  bool changed(const home::MotionEvent& e) const override {
+    const auto last = last_event();
+    return !last || last->motion != e.motion;
   }
 };
 
@@ -235,7 +353,12 @@ class OccupancyService final
   }
   void implement_listener(planet::Servant& s) override {
     s.implement(home::OccupancyListener::on_occupancy,
-                [this](const home::OccupancyEvent& e) { deliver(e); });
+                [this](const home::OccupancyEvent& e, const planet::Current& c) { deliver(e, c); });
+  }
+  void reread(const home::OccupancySensorPrx& sensor) override;
+  bool changed(const home::OccupancyEvent& e) const override {
+    const auto last = last_event();
+    return !last || last->occupied != e.occupied;
   }
 };
 

@@ -5,10 +5,13 @@
 // anything holding them keeps working.
 #pragma once
 
+#include <asio/steady_timer.hpp>
+#include <chrono>
 #include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -44,19 +47,52 @@ class AdaptorFactory {
   std::map<std::string, Make> makers_;
 };
 
+struct RegistryOptions {
+  // Devices held at once by clients that authenticated as no principal (a server without an
+  // access policy); a principal's own bound is its `max_devices`.
+  std::size_t max_anonymous_devices = 4096;
+  // A device whose link has been gone this long is unregistered and its services removed: its
+  // manager is gone for good (or was an impostor flooding the registry).
+  std::chrono::milliseconds forget_after{std::chrono::minutes(10)};
+  // When a device comes back with a state other than the one last acknowledged: send the
+  // acknowledged state again (true), or only report it (DeviceRestored either way).
+  bool reapply_state = true;
+};
+
+// What the registry tells about devices, as events (ServiceContainer::device_events):
+//   DeviceLost     device, reason            its link went down; its services are unavailable
+//   DeviceBack     device                    it registered again after a loss
+//   DeviceRestored device, capability, service, differences (text), reapplied (bool),
+//                  error (text, "" when none), and per differing value <name> (the wanted,
+//                  acknowledged value) and found_<name> (what the device had)
+//   DeviceForgotten device                   gone for longer than forget_after
 class DeviceRegistry final : public df::DeviceRegistryServant {
  public:
   // Serve it with communicator.adapter().add(std::string(device::kRegistryPath), registry).
   DeviceRegistry(planet::Communicator& communicator, ServiceContainer& container,
-                 AdaptorFactory factory);
+                 AdaptorFactory factory, RegistryOptions options = {});
   ~DeviceRegistry() override;
 
+  // Ownership: a device id belongs to the principal that first registered it (a client of a
+  // server with an AccessPolicy) until it unregisters it or the device is forgotten. A
+  // registration is refused (RegistrationRefused naming the principal and the device) when the
+  // principal's access entry does not list the id, when another principal holds it, or when the
+  // principal already holds its max_devices. The holder's own registration over a new link
+  // moves the device there (a restarted manager). Without an access policy every client is the
+  // same anonymous holder, bounded by max_anonymous_devices.
   void register_device(const df::DeviceInfo& device, const planet::Current& current) override;
+  // Only the holder may unregister a device: others get planet::Error(denied).
   void unregister_device(const std::string& id, const planet::Current& current) override;
   std::vector<std::string> devices(const planet::Current& current) override;
 
   // Devices registered and connected right now.
   std::size_t connected_devices() const;
+  // Devices registered, connected or not.
+  std::size_t registered_devices() const;
+  // The principal holding `device_id` ("" anonymous); nullopt when it is not registered.
+  std::optional<std::string> holder(const std::string& device_id) const;
+  // Unregisters every device `principal` holds (its access entry was removed); returns how many.
+  std::size_t forget_holder(const std::string& principal);
   // The calls through every adaptor bound from now on are reported to `observer` (see
   // planet::CallObserver); null: none. Set it before devices register.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
@@ -64,18 +100,30 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
  private:
   struct Registered {
     df::DeviceInfo info;
+    std::string holder;  // principal name; "" anonymous
     std::uint64_t connection_id = 0;
+    bool lost = false;   // its link went down since it registered
+    std::chrono::steady_clock::time_point disconnected_at;
     std::vector<std::shared_ptr<Adaptor>> services;
   };
-  void on_disconnected(std::uint64_t connection_id);
+  void on_disconnected(std::uint64_t connection_id, const std::string& reason);
+  void came_back(const std::string& device_id, const std::vector<std::shared_ptr<Adaptor>>& services);
+  void forget_expired();
+  void arm_forget(std::chrono::steady_clock::time_point at);
+  void remove_services(const std::vector<std::shared_ptr<Adaptor>>& services);
+  void emit(planet::Event event);
 
   planet::Communicator& communicator_;
   ServiceContainer& container_;
   AdaptorFactory factory_;
+  RegistryOptions options_;
   std::uint64_t listener_ = 0;
   mutable std::mutex mutex_;
   std::map<std::string, Registered> devices_;
   std::shared_ptr<planet::CallObserver> call_observer_;
+  std::unique_ptr<asio::steady_timer> forget_timer_;  // runs while devices are disconnected
+  std::chrono::steady_clock::time_point forget_at_{};  // when it fires; {}: not armed
+  std::shared_ptr<const char> alive_ = std::make_shared<const char>('\0');
 };
 
 }  // namespace icars::service

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "icars/planet/event.h"
 #include "icars/service/service.h"
 
 namespace icars::service {
@@ -61,6 +62,15 @@ class ServiceContainer {
   }
   void remove_watcher(std::uint64_t id) { watchers_.remove(id); }
 
+  // Events about devices (DeviceLost, DeviceBack, DeviceRestored, DeviceForgotten: see
+  // DeviceRegistry), for behaviors and tasks that react to a device's outages. `fn` runs on the
+  // server's io thread and must not block.
+  std::uint64_t watch_devices(std::function<void(const planet::Event&)> fn) {
+    return device_watchers_.add(std::move(fn));
+  }
+  void remove_device_watcher(std::uint64_t id) { device_watchers_.remove(id); }
+  void publish_device_event(const planet::Event& event) const { device_watchers_.notify(event); }
+
  private:
   struct Entry {
     std::shared_ptr<Service> service;
@@ -69,6 +79,7 @@ class ServiceContainer {
   mutable std::mutex mutex_;
   std::vector<Entry> entries_;
   Listeners<std::shared_ptr<Service>, ServiceChange> watchers_;
+  Listeners<planet::Event> device_watchers_;
 };
 
 }  // namespace icars::service

@@ -16,7 +16,7 @@ namespace icars::service {
 class ServiceFramework {
  public:
   explicit ServiceFramework(planet::Communicator& communicator,
-                            AdaptorFactory adaptors = AdaptorFactory::house());
+                            AdaptorFactory adaptors = AdaptorFactory::house(), RegistryOptions options = {});
   ~ServiceFramework();
   ServiceFramework(const ServiceFramework&) = delete;
   ServiceFramework& operator=(const ServiceFramework&) = delete;
