@@ -6,6 +6,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
 jobs=$(nproc)
+# ccache keys on paths relative to the checkout, so a fresh clone reuses what an earlier one built.
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
 
 cmake --preset asan -DICARS_BUILD_EXAMPLES=ON >/dev/null
 cmake --build build/asan -j "$jobs"

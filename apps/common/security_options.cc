@@ -59,6 +59,10 @@ std::string access_entry(const planet::Principal& principal) {
   entry["name"] = principal.name;
   entry["token_sha256"] = principal.token_sha256;
   entry["may_call"] = principal.may_call;
+  if (!principal.devices.empty()) {
+    entry["devices"] = principal.devices;
+    entry["max_devices"] = principal.max_devices;
+  }
   return entry.dump();
 }
 

@@ -13,6 +13,13 @@
 #include <vector>
 
 #include "child_process.h"
+#include "device.planet.h"
+#include "home.planet.h"
+#include "icars/planet/communicator.h"
+#include "icars/planet/security.h"
+
+#include <spdlog/spdlog.h>
+#include <csignal>
 
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -56,9 +63,9 @@ std::pair<std::vector<std::string>, int> run_command(const std::vector<std::stri
 
 // Starts `icars run --external` with `extra` options and returns it with its port.
 std::pair<std::unique_ptr<planet_test::ChildProcess>, std::string> start_mediator(
-    const std::vector<std::string>& extra, const std::string& trace) {
+    const std::vector<std::string>& extra, const std::string& trace, const std::string& until = "18:30") {
   std::vector<std::string> argv = {kIcars, "run", kPolicy, "--world", kHouse, "--external",
-                                   "--listen", "127.0.0.1:0", "--until", "18:30",
+                                   "--listen", "127.0.0.1:0", "--until", until,
                                    "--trace", trace, "--quiet"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   auto mediator = std::make_unique<planet_test::ChildProcess>(argv);
@@ -72,9 +79,10 @@ std::pair<std::unique_ptr<planet_test::ChildProcess>, std::string> start_mediato
 }
 
 std::unique_ptr<planet_test::ChildProcess> start_device_manager(const std::string& port,
-                                                                const std::vector<std::string>& extra) {
+                                                                const std::vector<std::string>& extra,
+                                                                const std::string& speedup = "600") {
   std::vector<std::string> argv = {kDeviceManager, "--house", kHouse, "--server",
-                                   "127.0.0.1:" + port, "--speedup", "600"};
+                                   "127.0.0.1:" + port, "--speedup", speedup};
   argv.insert(argv.end(), extra.begin(), extra.end());
   return std::make_unique<planet_test::ChildProcess>(argv);
 }
@@ -112,7 +120,7 @@ std::string first_line_starting(planet_test::ChildProcess& p, const std::vector<
 
 TEST(IcarsSecurity, OnlyADeviceManagerWithAListedTokenRegisters) {
   Scratch scratch;
-  auto [made, status] = run_command({kIcars, "token", "living-room"});
+  auto [made, status] = run_command({kIcars, "token", "living-room", "--devices", "*"});
   ASSERT_EQ(status, 0);
   ASSERT_EQ(made.size(), 2u);
   const std::string token = made[0];
@@ -120,6 +128,7 @@ TEST(IcarsSecurity, OnlyADeviceManagerWithAListedTokenRegisters) {
   const json entry = json::parse(made[1]);
   EXPECT_EQ(entry["name"], "living-room");
   EXPECT_EQ(entry["may_call"], json({"/sf/registry", "/sf/listeners/*"}));
+  EXPECT_EQ(entry["devices"], json({"*"}));
   EXPECT_EQ(entry["token_sha256"].get<std::string>().size(), 64u);
   const auto access = scratch.write("access.json", json{{"principals", json::array({entry})}}.dump());
   const auto good_token = scratch.write("living-room.token", token + "\n");
@@ -158,7 +167,7 @@ TEST(IcarsSecurity, MutualTlsAdmitsTheHomesCertificatesOnly) {
   const auto access = scratch.write(
       "access.json",
       R"({"principals": [{"name": "living-room", "certificate": "living-room",
-                          "may_call": ["/sf/registry", "/sf/listeners/*"]}]})");
+                          "may_call": ["/sf/registry", "/sf/listeners/*"], "devices": ["*"]}]})");
   const auto trace = scratch.path("trace.jsonl");
   auto [mediator, port] = start_mediator(
       {"--tls", "on", "--tls-ca", home + "/ca.pem", "--tls-cert", home + "/server.pem", "--tls-key",
@@ -190,6 +199,137 @@ TEST(IcarsSecurity, MutualTlsAdmitsTheHomesCertificatesOnly) {
   EXPECT_TRUE(ran_to_the_end(*mediator, trace));
 }
 
+// A second principal with its own valid token tries every hijack a real home would meet; each
+// is refused with an error naming the principal and the device, and the evening runs on.
+TEST(IcarsSecurity, AnotherPrincipalCannotHijackTheHomesDevices) {
+  Scratch scratch;
+  const auto make = [&](const std::string& name, const std::string& devices) {
+    auto [lines, status] = run_command({kIcars, "token", name, "--devices", devices, "--max-devices", "32"});
+    EXPECT_EQ(status, 0);
+    return lines;
+  };
+  const auto home = make("living-room", "*");
+  const auto intruder_made = make("intruder", "*");
+  ASSERT_EQ(home.size(), 2u);
+  ASSERT_EQ(intruder_made.size(), 2u);
+  const auto access = scratch.write(
+      "access.json", json{{"principals", json::array({json::parse(home[1]), json::parse(intruder_made[1])})}}.dump());
+  const auto token_file = scratch.write("living-room.token", home[0] + "\n");
+  const auto trace = scratch.path("trace.jsonl");
+  auto [mediator, port] = start_mediator({"--access", access}, trace, "18:30");
+  ASSERT_FALSE(port.empty());
+  auto living_room = start_device_manager(port, {"--token-file", token_file}, "120");
+  ASSERT_TRUE(first_line_starting(*living_room, {"LINK DOWN", "REGISTERED"}).starts_with("REGISTERED 1 "));
+
+  icars::planet::CommunicatorOptions options;
+  options.token = intruder_made[0];
+  icars::planet::Communicator intruder(options);
+  auto link = intruder.connect("127.0.0.1", static_cast<std::uint16_t>(std::stoi(port)));
+  ASSERT_TRUE(link->wait_connected(20s)) << link->last_error();
+  df::DeviceRegistryPrx registry(intruder, link, "/sf/registry");
+  const auto refused = [&](const df::DeviceInfo& device) -> std::string {
+    try {
+      registry.register_device(device);
+      return "(accepted)";
+    } catch (const df::RegistrationRefused& e) {
+      return e.reason();
+    }
+  };
+  const auto tv = df::DeviceInfo{"tv", "TV", "living_room", "", {{"tv_control", "home::TVControl", "/evil/tv"}}};
+  EXPECT_EQ(refused(tv), "device 'tv' is held by principal 'living-room'; principal 'intruder' may not take it over");
+  const auto clock = df::DeviceInfo{"simulator", "Simulator", "", "", {{"simulation", "home::Simulation", "/evil/sim"}}};
+  EXPECT_EQ(refused(clock),
+            "device 'simulator' is held by principal 'living-room'; principal 'intruder' may not take it over");
+  try {
+    registry.unregister_device("robot1_wheels");
+    ADD_FAILURE() << "the intruder unregistered the robot's wheels";
+  } catch (const icars::planet::Error& e) {
+    EXPECT_EQ(e.kind(), icars::planet::ErrorKind::denied);
+    EXPECT_NE(std::string(e.what()).find("principal 'intruder' may not unregister device 'robot1_wheels'"),
+              std::string::npos) << e.what();
+  }
+  // A flood of fake devices stops at the principal's max_devices.
+  int accepted = 0;
+  std::string last;
+  for (int i = 0; i < 5000 && last.find("limit") == std::string::npos; ++i) {
+    last = refused(df::DeviceInfo{"fake" + std::to_string(i), "TV", "hall", "", {{"tv_control", "home::TVControl", "/x"}}});
+    accepted += last == "(accepted)";
+  }
+  EXPECT_EQ(accepted, 32);
+  EXPECT_EQ(last, "principal 'intruder' holds 32 devices, its limit (max_devices in its access entry)");
+  // A forged "the user left the sofa" is dropped: only the sofa's own link speaks for it.
+  home::OccupancyListenerPrx sofa(intruder, link, "/sf/listeners/sofa_sensor.occupancy");
+  for (int i = 0; i < 50; ++i) sofa.on_occupancy(home::OccupancyEvent{"sofa_sensor", "sofa", false, 0});
+  EXPECT_FALSE(registry.devices().empty());  // handled after the forgeries
+  link->stop();
+
+  EXPECT_TRUE(ran_to_the_end(*mediator, trace));
+  std::ifstream in(trace);
+  int tv_on = 0;
+  for (std::string line; std::getline(in, line);) {
+    const json j = json::parse(line);
+    if (j.value("kind", "") == "call" && j.value("call", "") == "tv.tv_control.set_power(true)" && j.value("ok", true)) ++tv_on;
+  }
+  EXPECT_GE(tv_on, 1) << "the real TV was not switched on";
+}
+
+// SIGHUP reloads the access file: a removed principal loses its link at once and cannot come
+// back; an unchanged one keeps its link; a broken file changes nothing.
+TEST(IcarsSecurity, SighupReloadsTheAccessFileAndRevokesRemovedPrincipals) {
+  Scratch scratch;
+  const auto entry = [](const std::string& name, const std::string& token) {
+    return json{{"name", name}, {"token_sha256", icars::planet::sha256_hex(token)},
+                {"may_call", {"/sf/registry"}}, {"devices", {name + "_*"}}};
+  };
+  const auto both = json{{"principals", {entry("kept", "kept-token"), entry("removed", "removed-token")}}}.dump();
+  const auto access = scratch.write("access.json", both);
+  auto [mediator, port] = start_mediator({"--access", access}, scratch.path("trace.jsonl"), "23:00");
+  ASSERT_FALSE(port.empty());
+  const auto client = [&](const std::string& token) {
+    icars::planet::CommunicatorOptions options;
+    options.token = token;
+    options.logger = spdlog::default_logger();
+    return std::make_unique<icars::planet::Communicator>(options);
+  };
+  const auto port_number = static_cast<std::uint16_t>(std::stoi(port));
+  auto kept = client("kept-token");
+  auto removed = client("removed-token");
+  auto kept_link = kept->connect("127.0.0.1", port_number);
+  auto removed_link = removed->connect("127.0.0.1", port_number);
+  ASSERT_TRUE(kept_link->wait_connected(20s) && removed_link->wait_connected(20s));
+  df::DeviceRegistryPrx(*removed, removed_link, "/sf/registry")
+      .register_device(df::DeviceInfo{"removed_lamp", "Light", "hall", "", {{"light", "home::Light", "/l"}}});
+
+  const auto traced = [&](const std::string& text) {
+    std::ifstream in(scratch.path("trace.jsonl"));
+    const std::string all{std::istreambuf_iterator<char>(in), {}};
+    return all.find(text) != std::string::npos;
+  };
+  // A broken file first: reported, and nothing changes.
+  scratch.write("access.json", "{\"principals\": [");
+  mediator->signal(SIGHUP);
+  ASSERT_TRUE(planet_test::wait_until([&] { return traced("access file not reloaded"); }, 30s));
+  EXPECT_TRUE(removed_link->is_connected());
+  // Then the file without "removed".
+  scratch.write("access.json", json{{"principals", {entry("kept", "kept-token")}}}.dump());
+  mediator->signal(SIGHUP);
+  ASSERT_TRUE(planet_test::wait_until([&] { return traced("revoked or changed: removed; 1 devices forgotten"); }, 30s));
+  EXPECT_TRUE(planet_test::wait_until([&] { return removed_link->connect_count() == 1 && !removed_link->is_connected(); }, 30s))
+      << removed_link->last_error();
+  // It cannot come back: its reconnection is refused.
+  EXPECT_TRUE(planet_test::wait_until(
+      [&] { return removed_link->last_error().find("authentication failed") != std::string::npos; }, 30s))
+      << removed_link->last_error();
+  EXPECT_TRUE(kept_link->is_connected());
+  EXPECT_EQ(kept_link->connect_count(), 1u);
+  EXPECT_EQ(df::DeviceRegistryPrx(*kept, kept_link, "/sf/registry").devices(), std::vector<std::string>{})
+      << "the removed principal's device was not forgotten";
+  removed_link->stop();
+  kept_link->stop();
+  mediator->signal(SIGTERM);
+  EXPECT_EQ(mediator->wait(), 0);
+}
+
 TEST(IcarsSecurity, BrokenSecurityConfigurationStopsWithExitCodeTwo) {
   Scratch scratch;
   const auto bad_access = scratch.write("bad.json", R"({"principals": [{"name": "x", "token_sha256": "nothex"}]})");
@@ -200,6 +340,9 @@ TEST(IcarsSecurity, BrokenSecurityConfigurationStopsWithExitCodeTwo) {
   EXPECT_EQ(status, 2);
   auto [made, token_status] = run_command({kIcars, "token", "bad", "--may-call", "devices"});
   EXPECT_EQ(token_status, 2);
+  // A device manager's token lists the devices it may register.
+  EXPECT_EQ(run_command({kIcars, "token", "dm"}).second, 2);
+  EXPECT_EQ(run_command({kIcars, "token", "dm", "--devices", "tv*x"}).second, 2);
   const auto empty = scratch.write("empty.token", "\n");
   auto [dm_out, dm_status] = run_command({kDeviceManager, "--house", kHouse, "--token-file", empty});
   EXPECT_EQ(dm_status, 2);

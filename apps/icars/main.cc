@@ -9,7 +9,7 @@
 //       checks policies without running them; exit code 1 if any has errors.
 //   icars behaviors
 //       lists the behavior types a policy can use, with their parameters.
-//   icars token NAME [--may-call PATTERN...]
+//   icars token NAME [--may-call PATTERN...] [--devices PATTERN...] [--max-devices N]
 //       makes a token for a device manager or agent: prints the token (for its --token-file) and
 //       the entry to add to the server's --access file (docs/security.md).
 #include <CLI/CLI.hpp>
@@ -111,12 +111,25 @@ int main(int argc, char** argv) {
   token_cmd->add_option("name", token_name, "the principal's name")->required();
   token_cmd->add_option("--may-call", token_paths,
                         "servant path patterns it may call (default: what a device manager needs)");
+  std::vector<std::string> token_devices;
+  std::size_t token_max_devices = icars::planet::Principal{}.max_devices;
+  token_cmd->add_option("--devices", token_devices,
+                        "device id patterns it may register (\"tv\", \"robot1_*\", \"*\")");
+  token_cmd->add_option("--max-devices", token_max_devices, "devices it may hold at once");
 
   CLI11_PARSE(app, argc, argv);
   if (*validate_cmd) return validate(to_validate, policy_dir);
   if (*token_cmd) {
-    if (token_paths.empty()) token_paths = icars::app::device_manager_paths();
-    icars::planet::Principal principal{token_name, "", "", token_paths};
+    if (token_paths.empty()) {
+      token_paths = icars::app::device_manager_paths();
+      if (token_devices.empty()) {
+        std::fprintf(stderr,
+                     "icars token: a device manager's token needs --devices: the device ids it may register "
+                     "(\"tv\", \"living_*\", or \"*\" for any id no other principal holds)\n");
+        return 2;
+      }
+    }
+    icars::planet::Principal principal{token_name, "", "", token_paths, token_devices, token_max_devices};
     const std::string token = icars::planet::random_token();
     principal.token_sha256 = icars::planet::sha256_hex(token);
     try {

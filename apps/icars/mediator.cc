@@ -3,6 +3,7 @@
 #include "mediator.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -330,6 +331,37 @@ class Summary {
   std::vector<b::TraceRecord> plotted_;
 };
 
+// SIGHUP: reads the access file again and puts it in force; principals removed or changed lose
+// their links, and those removed their devices. A broken file changes nothing.
+void reload_access(const RunOptions& options, std::shared_ptr<const p::AccessPolicy>& in_force,
+                   p::Communicator& server, s::DeviceRegistry& registry, b::Trace& trace,
+                   const sim::SimClock& clock, const std::string& house_token) {
+  const auto current = in_force;
+  if (options.access_file.empty() || !current) {
+    trace.record(record(clock.now(), "note", "icars", "SIGHUP: no access file to reload"));
+    return;
+  }
+  std::shared_ptr<p::AccessPolicy> next;
+  try {
+    next = std::make_shared<p::AccessPolicy>(p::AccessPolicy::load(options.access_file));
+    if (const auto* house = current->find("house-devices"); house && !house_token.empty()) next->add(*house);
+  } catch (const std::exception& e) {
+    trace.record(record(clock.now(), "note", "icars",
+                        fmt::format("access file not reloaded, the old one stays in force: {}", e.what())));
+    return;
+  }
+  const auto changed = p::reload_access_policy(server.connections(), *current, next);
+  std::size_t forgotten = 0;
+  for (const auto& name : changed) {
+    if (!next->find(name)) forgotten += registry.forget_holder(name);
+  }
+  in_force = next;
+  trace.record(record(clock.now(), "note", "icars",
+                      fmt::format("access file reloaded: {} principals; revoked or changed: {}; {} devices forgotten",
+                                  next->principals().size(), changed.empty() ? "none" : fmt::format("{}", fmt::join(changed, ", ")),
+                                  forgotten)));
+}
+
 }  // namespace
 
 int run(const RunOptions& options) {
@@ -338,6 +370,7 @@ int run(const RunOptions& options) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGHUP);  // reload the access file
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   spdlog::set_level(spdlog::level::warn);
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // the timeline is read live, also through pipes
@@ -406,7 +439,8 @@ int run(const RunOptions& options) {
     try {
       auto access = std::make_shared<p::AccessPolicy>(p::AccessPolicy::load(options.access_file));
       if (!options.external) {
-        access->add({"house-devices", p::sha256_hex(house_token), "", {std::string(device::kRegistryPath)}});
+        access->add({"house-devices", p::sha256_hex(house_token), "",
+                     {std::string(device::kRegistryPath), "/sf/listeners/*"}, {"*"}, house.devices.size() + 16});
       }
       server_options.access = std::move(access);
     } catch (const std::exception& e) {
@@ -422,9 +456,38 @@ int run(const RunOptions& options) {
     return 2;
   }
   p::Communicator& server = *server_endpoint;
+  std::shared_ptr<const p::AccessPolicy> access_in_force = server_options.access;
   s::ServiceFramework sf(server);
   auto commands = std::make_shared<CommandRecorder>(trace);
   sf.registry().set_call_observer(commands);
+  // Outages of device managers and what came back, in the timeline (stamped once a clock runs).
+  std::atomic<const sim::SimClock*> device_clock{nullptr};
+  const auto device_watch = sf.container().watch_devices([&trace, &device_clock](const p::Event& e) {
+    const auto* at = device_clock.load();
+    const auto device = e.get<std::string>("device");
+    std::string text;
+    if (e.type() == "DeviceLost") text = fmt::format("{} lost: {}", device, e.get<std::string>("reason"));
+    else if (e.type() == "DeviceBack") text = fmt::format("{} registered again", device);
+    else if (e.type() == "DeviceForgotten") text = fmt::format("{} forgotten (gone too long)", device);
+    else if (e.type() == "DeviceRestored") {
+      const auto error = e.get<std::string>("error");
+      text = fmt::format("{} came back with another state: {}{}{}", device, e.get<std::string>("differences"),
+                         e.get<bool>("reapplied") ? "; re-applied" : "", error.empty() ? "" : "; failed: " + error);
+    } else {
+      return;
+    }
+    auto r = record(at ? at->now() : sim::SimTime(0), "device", device, std::move(text));
+    r.with("event", e.type()).with("device", device);
+    if (e.type() == "DeviceRestored") {
+      r.with("differences", e.get<std::string>("differences")).with("reapplied", e.get<bool>("reapplied"));
+    }
+    trace.record(std::move(r));
+  });
+  struct DeviceWatch {
+    s::ServiceContainer& services;
+    std::uint64_t id;
+    ~DeviceWatch() { services.remove_device_watcher(id); }
+  } release_device_watch{sf.container(), device_watch};
   std::uint16_t bound = 0;
   try {
     bound = server.listen(host, port);
@@ -484,6 +547,7 @@ int run(const RunOptions& options) {
     std::printf("[icars] waiting for device managers (icars-device-manager --server %s:%u)\n", host.c_str(), bound);
   }
   commands->set_clock(clock);
+  device_clock = clock;
   struct ClockRelease {  // the clock goes before the server, whose io thread may still end calls
     CommandRecorder& commands;
     ~ClockRelease() { commands.set_clock(nullptr); }
@@ -500,7 +564,12 @@ int run(const RunOptions& options) {
     // Start once the simulation's time is known, so timers count from the house's clock.
     while (!follower->following()) {
       const timespec wait{0, 50'000'000};
-      if (sigtimedwait(&signals, nullptr, &wait) > 0) return 0;
+      const int signal = sigtimedwait(&signals, nullptr, &wait);
+      if (signal == SIGHUP) {
+        reload_access(options, access_in_force, server, sf.registry(), trace, *clock, house_token);
+      } else if (signal > 0) {
+        return 0;
+      }
     }
   }
   const auto started_at = clock->now();
@@ -515,7 +584,10 @@ int run(const RunOptions& options) {
   bool interrupted = false;
   while (clock->now() < stop_at) {
     const timespec wait{0, 20'000'000};
-    if (sigtimedwait(&signals, nullptr, &wait) > 0) {
+    const int signal = sigtimedwait(&signals, nullptr, &wait);
+    if (signal == SIGHUP) {
+      reload_access(options, access_in_force, server, sf.registry(), trace, *clock, house_token);
+    } else if (signal > 0) {
       interrupted = true;
       break;
     }

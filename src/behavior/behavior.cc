@@ -43,6 +43,13 @@ Behavior::~Behavior() {
   }
 }
 
+void Behavior::listen_devices() {
+  auto deliver = guard([this](const Event& e) { receive(e); });
+  auto& services = env_->services;
+  const auto id = services.watch_devices([deliver](const Event& e) mutable { deliver(e); });
+  on_release([&services, id] { services.remove_device_watcher(id); });
+}
+
 void Behavior::set_identity(std::string type, std::string name) {
   type_ = std::move(type);
   name_ = name.empty() ? type_ : std::move(name);

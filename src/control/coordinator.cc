@@ -131,9 +131,18 @@ Coordinator::Coordinator(Policy policy, const b::BehaviorRegistry& registry, b::
         return node;
       };
   root_ = build(policy_.root, nullptr, 0);
+  // Device events reach the statechart as task events do (kDeviceEvents).
+  device_watch_ = env_.services.watch_devices([this, life = std::weak_ptr<const char>(life_)](const b::Event& e) {
+    env_.runtime.post([this, life, e] {
+      if (life.lock()) on_task_event(e);
+    });
+  });
 }
 
-Coordinator::~Coordinator() { stop(); }
+Coordinator::~Coordinator() {
+  env_.services.remove_device_watcher(device_watch_);
+  stop();
+}
 
 void Coordinator::start() {
   env_.runtime.run([this] {

@@ -244,3 +244,33 @@ TEST(CollaborationManager, LoadsPoliciesByNameFromTheRepositoryAndKeepsTheRunnin
   EXPECT_EQ(g_alive.load(), 0);
   std::filesystem::remove_all(dir);
 }
+
+// The Service Framework's device events reach every state's transitions, whatever its tasks
+// raise: a policy can react to a device that came back with another state.
+TEST(Coordinator, DeviceEventsDriveTransitionsWithGuardsOnTheirProperties) {
+  Fixture f;
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Watch"><behavior type="Alive"/></task>
+      <task name="Apologize"><behavior type="Alive"/></task>
+      <statechart initial="Watching">
+        <state name="Watching" task="Watch">
+          <transition event="DeviceRestored" guard="device == 'tv' and not reapplied" target="Apologizing"/>
+        </state>
+        <state name="Apologizing" task="Apologize"/>
+      </statechart>
+    </policy>)xml");
+  const auto restored = [&](const std::string& device, bool reapplied) {
+    icars::planet::Event e("DeviceRestored");
+    e.set("device", device).set("differences", std::string("channel 5 -> 0")).set("reapplied", reapplied);
+    f.services.publish_device_event(e);
+    f.settle();
+  };
+  restored("living_light", false);
+  restored("tv", true);
+  EXPECT_EQ(coordinator->current(), "Watching");
+  restored("tv", false);
+  EXPECT_EQ(coordinator->current(), "Apologizing");
+  EXPECT_EQ(f.transitions(), (std::vector<std::string>{"Watching -> Apologizing on DeviceRestored"}));
+  coordinator->stop();
+}

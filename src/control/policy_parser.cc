@@ -381,6 +381,7 @@ class Parser {
       }
       // Events that can reach this state's transitions: those of the tasks active while it is.
       std::set<std::string> raisable{std::string(kTaskDone), std::string(kTaskFailed)};
+      for (const auto d : kDeviceEvents) raisable.emplace(d);
       std::vector<std::string> tasks;
       auto add_task = [&](const StateSpec& st) {
         if (const auto* t = policy.task(st.task)) {

@@ -157,6 +157,10 @@ class Behavior : public Owner {
     on_release([sensor, id] { sensor->unsubscribe(id); });
   }
 
+  // The Service Framework's events about devices (DeviceLost, DeviceBack, DeviceRestored,
+  // DeviceForgotten; see service::DeviceRegistry) reach handle_event until exit.
+  void listen_devices();
+
   // Runs `fn` on the runtime after `delay` of (simulated) time, unless this activation ended.
   std::uint64_t after(sim::SimTime delay, std::function<void()> fn);
   void cancel(std::uint64_t timer);

@@ -75,6 +75,11 @@ struct Policy {
 // The task events every task raises: its root succeeded, or failed (property `reason`).
 inline constexpr std::string_view kTaskDone = "done";
 inline constexpr std::string_view kTaskFailed = "failed";
+// The Service Framework's events about devices (service::DeviceRegistry): any state may have a
+// transition on them, whatever its tasks raise ("DeviceRestored" when a device came back with
+// another state than the one last acknowledged).
+inline constexpr std::string_view kDeviceEvents[] = {"DeviceLost", "DeviceBack", "DeviceRestored",
+                                                    "DeviceForgotten"};
 
 struct Diagnostic {
   std::string file;
