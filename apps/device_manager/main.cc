@@ -4,13 +4,16 @@
 // server comes back.
 //
 //   icars-device-manager --house houses/paper_house.xml --server 127.0.0.1:7000 [--speedup 60]
-//                        [--effects FILE] [--epoch UNIX_MS]
+//                        [--effects FILE] [--epoch UNIX_MS] [--state FILE]
 //
 // Prints "REGISTERED <round> <devices>" after each complete registration round (tests wait on
 // it), and "LINK DOWN <reason>" whenever the server cannot be reached or denies the connection. With --effects, writes one JSON line per command a device executed (its effect, with the
 // request id of the call), the device side of the record `icars run --trace` keeps of the
 // commands it sent. With --epoch, device managers of one simulation started (or restarted) at
-// different times run on the same simulated time. Stops on SIGINT/SIGTERM.
+// different times run on the same simulated time. With --state, the simulated actuators and
+// robots keep their state in FILE and come back from it when the manager restarts, even after
+// SIGKILL (docs/house.md, "State file"); it prints "STATE restored|new|rejected FILE" first.
+// Stops on SIGINT/SIGTERM.
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
@@ -64,6 +67,11 @@ int main(int argc, char** argv) {
                  "before it the clock holds, after it a (re)started manager first runs its house forward "
                  "to the simulated time of now, in step with the other managers given the same epoch")
       ->check(CLI::PositiveNumber);
+  std::string state_file;
+  app.add_option("--state", state_file,
+                 "keep the simulated devices' and robots' state in this file (JSON, written atomically "
+                 "on every change) and start from it when it exists and matches the house "
+                 "(docs/house.md); use the same --epoch when restarting");
   icars::planet::TlsOptions tls;
   std::string token_file;
   icars::app::add_tls_options(app, tls, icars::app::Side::client);
@@ -105,6 +113,7 @@ int main(int argc, char** argv) {
   options.simulator = simulator;
   options.pun = pun;
   options.tls = tls;
+  options.state_file = state_file;
   if (!token_file.empty()) {
     try {
       options.token = icars::app::read_token_file(token_file);
@@ -153,7 +162,19 @@ int main(int argc, char** argv) {
     simulation->clock().advance_to(simulated_now());
     simulation->clock().advance_to(simulated_now());
   }
-  simulation->start(host, port);
+  if (auto* state = simulation->state_file()) {
+    using Loaded = icars::device::SimStateFile::Loaded;
+    const auto loaded = state->loaded();
+    std::cout << "STATE "
+              << (loaded == Loaded::restored ? "restored" : loaded == Loaded::rejected ? "rejected" : "new")
+              << ' ' << state->path().string() << std::endl;
+  }
+  try {
+    simulation->start(host, port);
+  } catch (const std::exception& e) {
+    std::cerr << "icars-device-manager: " << e.what() << "\n";
+    return 2;
+  }
   std::cout << "STARTED " << manager.devices().size() << " devices, simulated time "
             << icars::sim::format_time(simulation->clock().now()) << std::endl;
 

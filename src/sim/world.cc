@@ -229,6 +229,54 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     if (r.done) notes.push_back(DoneNote{std::exchange(r.done, {}), false});
   }
 
+  // Sets the robot driving along `m` (started at or before `now`): a pose report now, then
+  // every report_every, and the arrival at m.end(). Call with the lock held and no motion.
+  void drive(Robot& r, Motion m, std::function<void(bool)> done, SimTime now) {
+    r.motion = std::move(m);
+    r.done = std::move(done);
+    r.pose.theta = r.motion->at(now).theta;
+    schedule_report(r, now);  // the start; the report reschedules itself
+    r.arrival_timer = schedule(r.motion->end(), [this, &r](Notes& n) {
+      r.arrival_timer = 0;
+      cancel(r.report_timer);
+      r.pose = r.motion->last();
+      r.motion.reset();
+      n.push_back(PoseNote{r.spec->id, r.pose, false});
+      if (r.done) n.push_back(DoneNote{std::exchange(r.done, {}), true});
+    });
+  }
+
+  // Why a robot state cannot be restored, by throwing std::invalid_argument. Lock held.
+  void check(const RobotState& state) {
+    auto& r = robot(state.robot);
+    const auto near_free = [&](Point p) {
+      return std::isfinite(p.x) && std::isfinite(p.y) &&
+             r.grid->nearest_free(p, 2 * r.grid->resolution()).has_value();
+    };
+    if (!std::isfinite(state.pose.theta)) {
+      throw std::invalid_argument(
+          fmt::format("robot \"{}\": heading {} is not a finite angle", state.robot, state.pose.theta));
+    }
+    if (!near_free(state.pose.position())) {
+      throw std::invalid_argument(fmt::format(
+          "robot \"{}\" at ({}, {}) is not on a free spot of house \"{}\" for its radius {} m",
+          state.robot, state.pose.x, state.pose.y, house.name, r.spec->radius));
+    }
+    for (const auto& p : state.path) {
+      if (!near_free(p)) {
+        throw std::invalid_argument(fmt::format(
+            "robot \"{}\": path point ({}, {}) is not on a free spot of house \"{}\" for its "
+            "radius {} m",
+            state.robot, p.x, p.y, house.name, r.spec->radius));
+      }
+    }
+    if (state.moving() && state.start > state.at) {
+      throw std::invalid_argument(
+          fmt::format("robot \"{}\": its motion starts at {} ms, after the state was taken ({} ms)",
+                      state.robot, state.start.count(), state.at.count()));
+    }
+  }
+
   void schedule_report(Robot& r, SimTime t) {
     r.report_timer = schedule(t, [this, &r](Notes& notes) {
       r.report_timer = 0;
@@ -443,18 +491,7 @@ std::optional<std::vector<Point>> World::move_robot(const std::string& robot, Po
     }
     Motion m{std::move(*path), 0, r.spec->speed, now};
     m.length = path_length(m.path);
-    r.motion = std::move(m);
-    r.done = std::move(done);
-    r.pose.theta = r.motion->at(now).theta;
-    s.schedule_report(r, now);  // the start; the report reschedules itself
-    r.arrival_timer = s.schedule(r.motion->end(), [&s, &r](Impl::Notes& n) {
-      r.arrival_timer = 0;
-      s.cancel(r.report_timer);
-      r.pose = r.motion->last();
-      r.motion.reset();
-      n.push_back(Impl::PoseNote{r.spec->id, r.pose, false});
-      if (r.done) n.push_back(Impl::DoneNote{std::exchange(r.done, {}), true});
-    });
+    s.drive(r, std::move(m), std::move(done), now);
   }
   return result;
 }
@@ -494,6 +531,54 @@ std::uint64_t World::on_robot_pose(std::function<void(const std::string&, const 
   const auto id = impl_->next_listener++;
   impl_->pose_listeners.emplace(id, std::make_shared<Impl::PoseListener>(std::move(fn)));
   return id;
+}
+
+std::vector<RobotState> World::robot_states() const {
+  std::lock_guard lock(impl_->mutex);
+  const auto now = impl_->clock.now();
+  std::vector<RobotState> out;
+  out.reserve(impl_->robots.size());
+  for (const auto& [id, r] : impl_->robots) {
+    RobotState state{id, now, r.pose_at(now), {}, SimTime{0}};
+    if (r.motion) {
+      state.path = r.motion->path;
+      state.start = r.motion->start;
+    }
+    out.push_back(std::move(state));
+  }
+  return out;
+}
+
+void World::check_robot_state(const RobotState& state) const {
+  std::lock_guard lock(impl_->mutex);
+  impl_->check(state);
+}
+
+void World::restore_robot(const RobotState& state, std::function<void(bool)> done) {
+  auto& s = *impl_;
+  std::lock_guard lock(s.mutex);
+  s.check(state);
+  auto& r = s.robot(state.robot);
+  const auto now = s.clock.now();
+  Impl::Notes notes;
+  s.halt(r, now, notes);
+  if (!state.moving()) {
+    r.pose = state.pose;
+    notes.insert(notes.begin(), Impl::PoseNote{r.spec->id, r.pose, false});
+  } else {
+    Motion m{state.path, path_length(state.path), r.spec->speed, state.start};
+    if (now < state.at) m.start -= state.at - now;  // resume from state.pose
+    if (now < m.end()) {
+      s.drive(r, std::move(m), std::move(done), now);
+    } else {  // over while the state was kept: arrived
+      r.pose = m.last();
+      notes.push_back(Impl::PoseNote{r.spec->id, r.pose, false});
+      if (done) notes.push_back(Impl::DoneNote{std::move(done), true});
+    }
+  }
+  if (!notes.empty()) {
+    s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
+  }
 }
 
 UserState World::user(const std::string& user) const {

@@ -17,7 +17,8 @@
 //   SpeechEngine  speech_recognizer  home::SpeechRecognizer (a software device)
 //   VisionEngine  face_recognizer    home::FaceRecognizer   (a software device)
 // and the pseudo-device "simulator" (Simulation) through which tests and demos drive the world.
-// The actuators (TV, Light, Speaker, Wheels) report what they did to SimContext::effects.
+// The actuators (TV, Light, Speaker, Wheels) report what they did to SimContext::effects and
+// keep their state in SimContext::state (sim_state_file.h) when there is one.
 #pragma once
 
 #include <functional>
@@ -27,6 +28,7 @@
 #include <vector>
 
 #include "icars/device/device.h"
+#include "icars/device/sim_state_file.h"
 #include "icars/planet/communicator.h"
 #include "icars/sim/clock.h"
 #include "icars/sim/world.h"
@@ -64,13 +66,18 @@ struct DeviceEffect {
 using EffectObserver = std::function<void(const DeviceEffect&)>;
 
 // Everything a simulated device needs: the world, the communicator that serves the device
-// (for streams), and who hears the actuators' effects (empty: nobody).
+// (for streams), who hears the actuators' effects (empty: nobody), and the state file that
+// keeps the actuators' state across restarts (null: none). With a state file, an actuator
+// starts from the state it holds and has every accepted command's state on disk before it
+// replies; the wheels restore their robot when the file starts (SimStateFile::start).
 struct SimContext {
-  SimContext(sim::World& w, planet::Communicator& c, EffectObserver e = {})
-      : world(w), communicator(c), effects(std::move(e)) {}
+  SimContext(sim::World& w, planet::Communicator& c, EffectObserver e = {},
+             SimStateFile* s = nullptr)
+      : world(w), communicator(c), effects(std::move(e)), state(s) {}
   sim::World& world;
   planet::Communicator& communicator;
   EffectObserver effects;
+  SimStateFile* state;  // not owned; outlives the devices
 };
 
 // The device for a device of the house; throws std::invalid_argument for an unknown type.

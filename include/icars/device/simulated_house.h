@@ -2,14 +2,18 @@
 // chosen speed-up, every device of the house (plus the speech and vision engines and the
 // Simulation control device) served on its own PLANET communicator and registered with the
 // mediating server. Used by icars-device-manager and by `icars` in its one-process mode.
+// With a state file (SimulatedHouseOptions::state_file) the actuators and robots come back
+// from it and keep it up to date (sim_state_file.h, docs/house.md "State file").
 #pragma once
 
+#include <filesystem>
 #include <memory>
 #include <set>
 #include <string>
 
 #include "icars/device/device_manager.h"
 #include "icars/device/sim_devices.h"
+#include "icars/device/sim_state_file.h"
 #include "icars/sim/clock.h"
 #include "icars/sim/house.h"
 #include "icars/sim/world.h"
@@ -30,6 +34,7 @@ struct SimulatedHouseOptions {
   std::string token;              // authenticates the device manager to the server
   std::shared_ptr<spdlog::logger> logger;  // the device communicator's; default: stderr, info
   EffectObserver effects;  // hears what the simulated actuators do (SimContext::effects)
+  std::filesystem::path state_file;  // keep the devices' state here; empty: none
 };
 
 class SimulatedHouse {
@@ -38,19 +43,23 @@ class SimulatedHouse {
   SimulatedHouse(sim::House house, SimulatedHouseOptions options);
   ~SimulatedHouse();  // stops the clock first, so no world event runs during teardown
 
-  // Starts the clock and connects to the server (registering every device, again after every
-  // reconnection).
+  // Restores the robots from the state file and writes it (throwing std::runtime_error
+  // naming the file when it cannot), then starts the clock and connects to the server
+  // (registering every device, again after every reconnection). Set the clock first (--epoch):
+  // a robot's kept motion goes on from the clock's time here.
   void start(const std::string& host, std::uint16_t port);
 
   sim::World& world() { return *world_; }
   sim::SimClock& clock() { return clock_; }
   DeviceManager& manager() { return *manager_; }
+  SimStateFile* state_file() { return state_.get(); }  // null without one
   planet::Communicator& communicator() { return *communicator_; }
 
  private:
   SimulatedHouseOptions options_;
   sim::SimClock clock_;
   std::unique_ptr<sim::World> world_;
+  std::unique_ptr<SimStateFile> state_;  // outlives the devices, not the world
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<DeviceManager> manager_;
   std::unique_ptr<sim::RealTimeDriver> driver_;

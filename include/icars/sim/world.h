@@ -41,6 +41,19 @@ struct UserState {
   friend bool operator==(const UserState&, const UserState&) = default;
 };
 
+// A robot's state as a device manager's state file keeps it (icars::device::SimStateFile):
+// where it stands, or the motion it is driving, which the clock alone carries on — so a
+// driving robot needs no write per step to be restored exactly.
+struct RobotState {
+  std::string robot;
+  SimTime at{0};            // the clock's time when the state was taken
+  Pose pose;                // where the robot was at `at`
+  std::vector<Point> path;  // the path it is driving, from where it set off; empty: standing
+  SimTime start{0};         // when it set off along `path`
+  bool moving() const { return !path.empty(); }
+  friend bool operator==(const RobotState&, const RobotState&) = default;
+};
+
 struct WorldOptions {
   SimTime report_every{500};   // pose reports while a robot moves
   double snap_distance = 1.5;  // m: a blocked move target is replaced by the nearest free spot
@@ -85,6 +98,24 @@ class World {
   void turn_robot(const std::string& robot, double theta);
   std::uint64_t on_robot_pose(
       std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn);
+
+  // Every robot's state now, ordered by id.
+  std::vector<RobotState> robot_states() const;
+  // Throws std::invalid_argument naming the robot and what is wrong when restore_robot()
+  // would refuse `state`: an unknown robot, a non-finite number, a pose or path point that is
+  // not on (or within two grid cells of) a free spot for the robot's radius, a motion that
+  // starts after `at`.
+  void check_robot_state(const RobotState& state) const;
+  // Puts a robot back into a state taken by robot_states(), ending a motion in progress (its
+  // `done` hears false). Standing: the robot stands at state.pose. Driving: the motion goes on
+  // along state.path at the robot's speed as if nothing had happened — with the clock at or
+  // past state.at the robot is where the motion puts it now (at the end of the path,
+  // arrived, when it is over); with the clock behind state.at (a restart without a common
+  // epoch) the motion is shifted in time so the robot resumes from state.pose. `done` runs as
+  // for move_robot() when a motion is restored (true on arrival), never for a standing robot.
+  // Pose listeners hear the pose from a clock event at the current time. Throws as
+  // check_robot_state() does.
+  void restore_robot(const RobotState& state, std::function<void(bool arrived)> done = {});
 
   UserState user(const std::string& user) const;  // position exact at clock().now()
   // Called when a user's room, posture or furniture changes (not for every step of a walk).

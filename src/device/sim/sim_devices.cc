@@ -61,113 +61,117 @@ class EffectReporter {
 
 std::string on_off(bool on) { return on ? "on" : "off"; }
 
-class SimTV final : public home::TVControlServant {
+// An actuator's state, kept in the state file when there is one: a change is recorded there
+// under the actuator's lock (so the file never holds an older state than the device) and on
+// disk before change() returns, so before the command's reply.
+template <class State>
+class KeptState {
  public:
-  SimTV(std::string id, const SimContext& context) : report_(std::move(id), context) {}
-  void set_power(bool on, const p::Current& current) override {
+  KeptState(std::string id, SimStateFile* file, State initial)
+      : id_(std::move(id)), file_(file), state_(std::move(initial)) {}
+  template <class Change>
+  void change(Change&& change) {
     {
       std::lock_guard lock(mutex_);
-      state_.on = on;
+      change(state_);
+      if (file_) file_->set(id_, state_);
     }
+    if (file_) file_->commit();
+  }
+  State get() const {
+    std::lock_guard lock(mutex_);
+    return state_;
+  }
+
+ private:
+  std::string id_;
+  SimStateFile* file_;
+  mutable std::mutex mutex_;
+  State state_;
+};
+
+class SimTV final : public home::TVControlServant {
+ public:
+  SimTV(const std::string& id, const SimContext& context)
+      : report_(id, context), state_(id, context.state, context.state ? context.state->tv(id) : SimTVState{}) {}
+  void set_power(bool on, const p::Current& current) override {
+    state_.change([&](SimTVState& s) { s.on = on; });
     report_("power", on_off(on), current);
   }
   void set_channel(std::int32_t channel, const p::Current& current) override {
     check_range("channel", channel, 1, 99);
-    {
-      std::lock_guard lock(mutex_);
-      state_.channel = channel;
-    }
+    state_.change([&](SimTVState& s) { s.channel = channel; });
     report_("channel", std::to_string(channel), current);
   }
   void set_volume(std::int32_t volume, const p::Current& current) override {
     check_range("volume", volume, 0, 100);
-    {
-      std::lock_guard lock(mutex_);
-      state_.volume = volume;
-    }
+    state_.change([&](SimTVState& s) { s.volume = volume; });
     report_("volume", std::to_string(volume), current);
   }
   home::TVState state(const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    return state_;
+    const auto s = state_.get();
+    return home::TVState{s.on, s.channel, s.volume};
   }
 
  private:
   EffectReporter report_;
-  std::mutex mutex_;
-  home::TVState state_{false, 1, 20};
+  KeptState<SimTVState> state_;
 };
 
 class SimLight final : public home::LightServant {
  public:
-  SimLight(std::string id, const SimContext& context) : report_(std::move(id), context) {}
+  SimLight(const std::string& id, const SimContext& context)
+      : report_(id, context),
+        state_(id, context.state, context.state ? context.state->light(id) : SimLightState{}) {}
   void set_power(bool on, const p::Current& current) override {
-    {
-      std::lock_guard lock(mutex_);
-      state_.on = on;
-    }
+    state_.change([&](SimLightState& s) { s.on = on; });
     report_("power", on_off(on), current);
   }
   void set_intensity(std::int32_t percent, const p::Current& current) override {
     check_range("intensity", percent, 0, 100);
-    {
-      std::lock_guard lock(mutex_);
-      state_.intensity = percent;
-    }
+    state_.change([&](SimLightState& s) { s.intensity = percent; });
     report_("intensity", std::to_string(percent), current);
   }
   home::LightState state(const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    return state_;
+    const auto s = state_.get();
+    return home::LightState{s.on, s.intensity};
   }
 
  private:
   EffectReporter report_;
-  std::mutex mutex_;
-  home::LightState state_{false, 100};
+  KeptState<SimLightState> state_;
 };
 
 class SimSpeaker final : public home::SpeakerServant {
  public:
-  SimSpeaker(std::string id, const SimContext& context) : report_(std::move(id), context) {}
+  SimSpeaker(const std::string& id, const SimContext& context)
+      : report_(id, context),
+        state_(id, context.state, context.state ? context.state->speaker(id) : SimSpeakerState{}) {}
   void play(const std::string& track, const p::Current& current) override {
-    {
-      std::lock_guard lock(mutex_);
-      state_.playing = track;
-    }
+    state_.change([&](SimSpeakerState& s) { s.playing = track; });
     report_("playing", track, current);
   }
   void stop(const p::Current& current) override {
-    {
-      std::lock_guard lock(mutex_);
-      state_.playing.clear();
-    }
+    state_.change([](SimSpeakerState& s) { s.playing.clear(); });
     report_("stopped", "", current);
   }
   void set_volume(std::int32_t volume, const p::Current& current) override {
     check_range("volume", volume, 0, 100);
-    {
-      std::lock_guard lock(mutex_);
-      state_.volume = volume;
-    }
+    state_.change([&](SimSpeakerState& s) { s.volume = volume; });
     report_("volume", std::to_string(volume), current);
   }
   void speak(const std::string& text, const p::Current& current) override {
-    {
-      std::lock_guard lock(mutex_);
-      state_.last_spoken = text;
-    }
+    state_.change([&](SimSpeakerState& s) { s.last_spoken = text; });
     report_("spoke", text, current);
   }
   home::SpeakerState state(const p::Current&) override {
-    std::lock_guard lock(mutex_);
-    return state_;
+    const auto s = state_.get();
+    return home::SpeakerState{s.playing, s.volume, s.last_spoken};
   }
 
  private:
   EffectReporter report_;
-  std::mutex mutex_;
-  home::SpeakerState state_{"", 40, ""};
+  KeptState<SimSpeakerState> state_;
 };
 
 // --- Sensors ---------------------------------------------------------------------------------
@@ -254,10 +258,12 @@ class SimWheels final : public home::WheelsServant {
  public:
   SimWheels(std::string robot, std::string device, SimContext context)
       : robot_(std::move(robot)), world_(context.world), report_(std::move(device), context),
-        listener_(context.world) {
+        file_(context.state), listener_(context.world) {
     listener_.set(world_.on_robot_pose(
         [this](const std::string& which, const sim::Pose& pose, bool moving) {
           if (which != robot_) return;
+          // A motion is kept as its path (the clock carries it on): only its end is a change.
+          if (!moving && file_) file_->changed();
           {
             // Stopping at the goal is reported once, as the arrival (by move's done), so a
             // listener never mistakes the arrival's last pose for a stop short of the goal.
@@ -266,10 +272,12 @@ class SimWheels final : public home::WheelsServant {
           }
           publish(pose, moving, false);
         }));
+    if (file_) file_->on_restore_robot(robot_, [this](const sim::RobotState& s) { restore(s); });
   }
   double go_to(const home::Pose& target, const p::Current& current) override {
     const auto name = fmt::format("({:.2f}, {:.2f})", target.x, target.y);
     const double length = move({target.x, target.y}, name);
+    if (file_) file_->commit();
     report_("going_to", name, current);
     return length;
   }
@@ -277,18 +285,21 @@ class SimWheels final : public home::WheelsServant {
     const auto at = world_.house().locate(waypoint);
     if (!at) throw home::UnknownTarget(waypoint, "no waypoint, furniture or room '" + waypoint + "'");
     const double length = move(*at, waypoint);
+    if (file_) file_->commit();
     report_("going_to", waypoint, current);
     return length;
   }
   void stop(const p::Current& current) override {
     forget_goal();
     world_.stop_robot(robot_);
+    if (file_) file_->commit();
     report_("halted", "", current);
   }
   // The position event that follows (from the clock) has the new heading, not moving.
   void turn_to(double theta, const p::Current& current) override {
     forget_goal();
     world_.turn_robot(robot_, theta);
+    if (file_) file_->commit();
     report_("turned", fmt::format("{:.2f}", theta), current);
   }
   home::Pose position(const p::Current&) override {
@@ -326,9 +337,21 @@ class SimWheels final : public home::WheelsServant {
     goal_.reset();
   }
 
+  // Back to the state file's pose or motion; a restored motion's arrival is published as a
+  // go_to's is.
+  void restore(const sim::RobotState& state) {
+    std::lock_guard lock(mutex_);
+    goal_.reset();
+    if (state.moving()) goal_ = state.path.back();
+    world_.restore_robot(state, [this](bool arrived) {
+      if (arrived) publish(world_.robot_pose(robot_), false, true);
+    });
+  }
+
   std::string robot_;
   sim::World& world_;
   EffectReporter report_;
+  SimStateFile* file_;
   p::Publisher<home::PositionEvent> positions_{home::PositionListener::on_position};
   std::mutex mutex_;
   std::optional<sim::Point> goal_;  // where the current move ends

@@ -2,17 +2,27 @@
 // hand: every capability answers as its IDL says, sensors publish when the simulated user
 // does something, out-of-range commands are refused with a typed exception, actuators report
 // what they did, the wheels turn in place, and simulated speech round-trips through the speech
-// engine only when it is loud enough.
+// engine only when it is loud enough. With a state file, every acknowledged command is on
+// disk, a restart starts from it (a driving robot drives on with the clock), and a corrupt or
+// mismatching file is set aside with the reason.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <atomic>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <numbers>
+#include <thread>
 
 #include "child_process.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
 #include "icars/device/sim_devices.h"
+#include "icars/device/sim_state_file.h"
 #include "icars/device/simulated_house.h"
 #include "icars/planet/stream.h"
 #include "icars/sim/house.h"
@@ -353,6 +363,272 @@ TEST_F(SimDevices, TheWheelsTurnInPlaceAndStopAMotion) {
   ASSERT_TRUE(heading_reported(0));
   std::lock_guard lock(mutex);
   for (const auto& e : positions) EXPECT_FALSE(e.arrived) << e.x << ", " << e.y;
+}
+
+// --- The state file ----------------------------------------------------------------------------
+
+// A device manager's part for the state-file tests: the paper's house on a clock started at
+// `now`, every house device hosted with the state file `file`, called over loopback.
+class KeptHouse {
+ public:
+  KeptHouse(const std::filesystem::path& file, sim::SimTime now,
+            std::chrono::milliseconds min_interval = 100ms)
+      : clock_(now) {
+    std::vector<std::string> ids;
+    for (const auto& spec : world_.house().devices) ids.push_back(spec.id);
+    state_ = std::make_unique<SimStateFile>(file, world_, ids, nullptr, min_interval);
+    const SimContext context{world_, devices_, {}, state_.get()};
+    for (const auto& spec : world_.house().devices) manager_.add(make_sim_device(spec, context));
+    state_->start();
+    peer_ = client_.connect("127.0.0.1", devices_.listen("127.0.0.1", 0));
+    EXPECT_TRUE(peer_->wait_connected(20s));
+  }
+  template <class Prx>
+  Prx capability(const std::string& device, const std::string& name) {
+    return Prx(client_, peer_, "/devices/" + device + "/" + name);
+  }
+  sim::SimClock& clock() { return clock_; }
+  sim::World& world() { return world_; }
+  SimStateFile& state() { return *state_; }
+
+ private:
+  sim::SimClock clock_;
+  sim::World world_{sim::load_house(ICARS_PAPER_HOUSE), clock_};
+  std::unique_ptr<SimStateFile> state_;
+  p::Communicator devices_;
+  DeviceManager manager_{devices_};
+  p::Communicator client_;
+  std::shared_ptr<p::Peer> peer_;
+};
+
+class SimStateFileTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("icars_state_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::remove_all(dir_);
+    std::filesystem::create_directories(dir_);
+    file_ = dir_ / "house.state.json";
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  static std::string read(const std::filesystem::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return {std::istreambuf_iterator<char>(in), {}};
+  }
+  static void write(const std::filesystem::path& path, const std::string& text) {
+    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+  }
+  nlohmann::json on_disk() const { return nlohmann::json::parse(read(file_)); }
+
+  std::filesystem::path dir_;
+  std::filesystem::path file_;
+  const sim::SimTime t18_ = sim::at_time(0, 18, 0);
+};
+
+TEST_F(SimStateFileTest, EveryAcknowledgedCommandIsOnDiskAndARestartStartsFromIt) {
+  std::string killed;  // the file as a SIGKILL right after the last reply would leave it
+  {
+    KeptHouse house(file_, t18_);
+    EXPECT_EQ(house.state().loaded(), SimStateFile::Loaded::none);
+    auto tv = house.capability<home::TVControlPrx>("tv", "tv_control");
+    for (int volume = 21; volume <= 30; ++volume) {
+      tv.set_volume(volume);  // on disk before the reply
+      EXPECT_EQ(on_disk()["devices"]["tv"]["volume"], volume);
+    }
+    tv.set_power(true);
+    tv.set_channel(5);
+    tv.set_volume(25);
+    EXPECT_THROW(tv.set_channel(100), home::OutOfRange);  // refused: nothing changes
+    house.capability<home::LightPrx>("living_light", "light").set_intensity(30);
+    auto speaker = house.capability<home::SpeakerPrx>("robot1_speaker", "speaker");
+    speaker.play("calm music");
+    speaker.speak("good night");
+    killed = read(file_);
+  }
+  write(file_, killed);
+  KeptHouse again(file_, t18_);
+  EXPECT_EQ(again.state().loaded(), SimStateFile::Loaded::restored);
+  const auto tv = again.capability<home::TVControlPrx>("tv", "tv_control").state();
+  EXPECT_TRUE(tv.on);
+  EXPECT_EQ(tv.channel, 5);
+  EXPECT_EQ(tv.volume, 25);
+  const auto light = again.capability<home::LightPrx>("living_light", "light").state();
+  EXPECT_FALSE(light.on);
+  EXPECT_EQ(light.intensity, 30);
+  const auto bedroom = again.capability<home::LightPrx>("bedroom_light", "light").state();
+  EXPECT_EQ(bedroom.intensity, 100);  // never commanded: as a new light
+  const auto speaker = again.capability<home::SpeakerPrx>("robot1_speaker", "speaker").state();
+  EXPECT_EQ(speaker.playing, "calm music");
+  EXPECT_EQ(speaker.volume, 40);
+  EXPECT_EQ(speaker.last_spoken, "good night");
+}
+
+TEST_F(SimStateFileTest, ARobotThatArrivedComesBackWhereItStopped) {
+  home::Pose arrived;
+  std::string killed;
+  {
+    KeptHouse house(file_, t18_);
+    auto wheels = house.capability<home::WheelsPrx>("robot1_wheels", "wheels");
+    wheels.go_to(home::Pose{1.58, 3.78, 0});
+    EXPECT_TRUE(on_disk()["robots"]["robot1"].contains("path"));  // the motion, at once
+    const auto writes = house.state().writes();
+    house.clock().advance_by(60s);
+    arrived = wheels.position();
+    EXPECT_NEAR(arrived.x, 1.58, 0.05);
+    // The arrival is written within min_interval of wall time, without a command.
+    ASSERT_TRUE(planet_test::wait_until([&] { return house.state().writes() > writes; }));
+    killed = read(file_);
+  }
+  write(file_, killed);
+  EXPECT_FALSE(nlohmann::json::parse(killed)["robots"]["robot1"].contains("path"));
+  KeptHouse again(file_, t18_);  // no common epoch: the clock starts over; the robot stays
+  const auto pose = again.capability<home::WheelsPrx>("robot1_wheels", "wheels").position();
+  EXPECT_EQ(pose.x, arrived.x);
+  EXPECT_EQ(pose.y, arrived.y);
+  EXPECT_EQ(pose.theta, arrived.theta);
+  EXPECT_FALSE(again.world().robot_moving("robot1"));
+}
+
+TEST_F(SimStateFileTest, ADrivingRobotDrivesOnWithTheClockAndArrivesWhereItWould) {
+  // The reference: the same command in a house that is never restarted.
+  sim::SimClock clock(t18_);
+  sim::World reference(sim::load_house(ICARS_PAPER_HOUSE), clock);
+  ASSERT_TRUE(reference.move_robot("robot1", *reference.house().locate("bedroom_window")));
+
+  std::string at_command;  // killed right after the go_to's reply
+  std::string mid_drive;   // killed 2 s into the drive, after a write of the moving robot
+  {
+    KeptHouse house(file_, t18_);
+    auto wheels = house.capability<home::WheelsPrx>("robot1_wheels", "wheels");
+    wheels.go_to_waypoint("bedroom_window");
+    at_command = read(file_);
+    house.clock().advance_by(2s);
+    house.state().commit();
+    mid_drive = read(file_);
+  }
+  clock.advance_by(2s);
+  const auto reference_at_2s = reference.robot_pose("robot1");
+
+  // Restarted on the same simulated time (--epoch): where the drive puts it now.
+  write(file_, at_command);
+  {
+    KeptHouse again(file_, t18_ + 2s);
+    EXPECT_TRUE(again.world().robot_moving("robot1"));
+    EXPECT_EQ(again.world().robot_pose("robot1"), reference_at_2s);
+    again.clock().advance_by(60s);
+    clock.advance_by(60s);
+    EXPECT_FALSE(again.world().robot_moving("robot1"));
+    EXPECT_EQ(again.world().robot_pose("robot1"), reference.robot_pose("robot1"));
+  }
+  // Restarted long after the drive would have ended: arrived.
+  write(file_, at_command);
+  {
+    KeptHouse again(file_, t18_ + 10min);
+    EXPECT_FALSE(again.world().robot_moving("robot1"));
+    EXPECT_EQ(again.world().robot_pose("robot1"), reference.robot_pose("robot1"));
+  }
+  // Restarted on a clock behind the file (no epoch): it resumes from where it was written.
+  write(file_, mid_drive);
+  {
+    KeptHouse again(file_, t18_);
+    EXPECT_TRUE(again.world().robot_moving("robot1"));
+    EXPECT_EQ(again.world().robot_pose("robot1"), reference_at_2s);
+    again.clock().advance_by(60s);
+    EXPECT_EQ(again.world().robot_pose("robot1"), reference.robot_pose("robot1"));
+  }
+}
+
+TEST_F(SimStateFileTest, ACorruptFileIsSetAsideWithAWarningAndTheHouseStartsFresh) {
+  {
+    KeptHouse house(file_, t18_);
+    house.capability<home::TVControlPrx>("tv", "tv_control").set_channel(7);
+  }
+  const std::string good = read(file_);
+  write(file_, good.substr(0, good.size() / 2));  // truncated, as a torn write would be
+  KeptHouse house(file_, t18_);
+  EXPECT_EQ(house.state().loaded(), SimStateFile::Loaded::rejected);
+  EXPECT_NE(house.state().rejection().find("not valid JSON"), std::string::npos)
+      << house.state().rejection();
+  EXPECT_EQ(read(std::filesystem::path(file_.string() + ".rejected")), good.substr(0, good.size() / 2));
+  EXPECT_EQ(house.capability<home::TVControlPrx>("tv", "tv_control").state().channel, 1);
+  EXPECT_EQ(on_disk()["devices"]["tv"]["channel"], 1);  // a fresh, whole file
+}
+
+TEST_F(SimStateFileTest, AFileOfAnotherHouseOrDeviceSetOrWithBadValuesIsRejectedSayingWhy) {
+  { KeptHouse house(file_, t18_); }
+  const auto good = on_disk();
+  const auto rejected_for = [&](nlohmann::json doc) {
+    write(file_, doc.dump());
+    KeptHouse house(file_, t18_);
+    EXPECT_EQ(house.state().loaded(), SimStateFile::Loaded::rejected);
+    return house.state().rejection();
+  };
+  auto other = good;
+  other["house"] = "flat";
+  EXPECT_NE(rejected_for(other).find("written for house \"flat\""), std::string::npos);
+  other = good;
+  other["devices"].erase("tv");
+  other["devices"]["lamp"] = {{"type", "Light"}, {"on", true}, {"intensity", 5}};
+  EXPECT_NE(rejected_for(other).find("it lacks [tv] and has [lamp]"), std::string::npos)
+      << rejected_for(other);
+  other = good;
+  other["devices"]["tv"]["volume"] = 101;
+  EXPECT_NE(rejected_for(other).find("device \"tv\": \"volume\" is 101, expected 0 to 100"),
+            std::string::npos);
+  other = good;
+  other["devices"]["tv"]["on"] = "yes";
+  EXPECT_NE(rejected_for(other).find("device \"tv\": \"on\" is \"yes\", expected true or false"),
+            std::string::npos);
+  other = good;
+  other["robots"]["robot1"]["x"] = 12.0;  // outside the house
+  EXPECT_NE(rejected_for(other).find("robot \"robot1\" at (12, "), std::string::npos)
+      << rejected_for(other);
+  other = good;
+  other["version"] = 9;
+  EXPECT_NE(rejected_for(other).find("version 9, this program reads version 1"), std::string::npos);
+}
+
+TEST_F(SimStateFileTest, ChangesNobodyWaitsForAreThrottledCommitsAreNot) {
+  KeptHouse house(file_, t18_, 200ms);
+  const auto first = house.state().writes();
+  const auto started = std::chrono::steady_clock::now();
+  for (int i = 0; i < 200; ++i) {
+    house.state().changed();
+    std::this_thread::sleep_for(1ms);
+  }
+  ASSERT_TRUE(planet_test::wait_until([&] { return house.state().writes() > first; }));
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  EXPECT_LE(static_cast<double>(house.state().writes() - first), elapsed / 0.2 + 2);
+  // A commit does not wait for the interval: four in a row are four writes (or shared ones).
+  auto tv = house.capability<home::TVControlPrx>("tv", "tv_control");
+  for (int channel = 2; channel <= 5; ++channel) {
+    tv.set_channel(channel);
+    EXPECT_EQ(on_disk()["devices"]["tv"]["channel"], channel);
+  }
+}
+
+TEST_F(SimStateFileTest, AReaderNeverSeesATornFile) {
+  KeptHouse house(file_, t18_, 0ms);
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0};
+  std::string torn;
+  std::thread reader([&] {
+    while (!done) {
+      const auto text = read(file_);
+      if (!nlohmann::json::accept(text)) torn = text;
+      ++reads;
+    }
+  });
+  auto tv = house.capability<home::TVControlPrx>("tv", "tv_control");
+  for (int volume = 0; volume <= 100; ++volume) tv.set_volume(volume);
+  ASSERT_TRUE(planet_test::wait_until([&] { return reads > 10; }));
+  done = true;
+  reader.join();
+  EXPECT_EQ(torn, "");
+  EXPECT_FALSE(std::filesystem::exists(file_.string() + ".rejected"));
 }
 
 TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {

@@ -13,12 +13,17 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   comm.logger = options_.logger;
   communicator_ = std::make_unique<planet::Communicator>(comm);
   manager_ = std::make_unique<DeviceManager>(*communicator_);
-  const SimContext context{*world_, *communicator_, options_.effects};
+  std::vector<const sim::DeviceSpec*> hosted;
   for (const auto& spec : world_->house().devices) {
-    if (options_.devices.empty() || options_.devices.contains(spec.id)) {
-      manager_->add(make_sim_device(spec, context));
-    }
+    if (options_.devices.empty() || options_.devices.contains(spec.id)) hosted.push_back(&spec);
   }
+  if (!options_.state_file.empty()) {
+    std::vector<std::string> ids;
+    for (const auto* spec : hosted) ids.push_back(spec->id);
+    state_ = std::make_unique<SimStateFile>(options_.state_file, *world_, std::move(ids), options_.logger);
+  }
+  const SimContext context{*world_, *communicator_, options_.effects, state_.get()};
+  for (const auto* spec : hosted) manager_->add(make_sim_device(*spec, context));
   if (options_.engines) {
     for (auto& d : make_sim_engines(context)) manager_->add(d);
   }
@@ -30,10 +35,12 @@ SimulatedHouse::~SimulatedHouse() {
   driver_->stop();
   manager_.reset();
   communicator_.reset();  // no servant runs after this
+  state_.reset();         // its last write reads the world
   world_.reset();
 }
 
 void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
+  if (state_) state_->start();
   driver_->start();
   manager_->connect(host, port);
 }
