@@ -121,6 +121,8 @@ struct Operation {
   std::vector<Parameter> parameters;
   std::vector<const Struct*> raises;  // exceptions, in the order written
   bool oneway = false;
+  // May be sent again after a lost connection (planet::CallMode::idempotent); never oneway.
+  bool idempotent = false;
   SourceLocation location;
 };
 

@@ -391,8 +391,9 @@ std::string operation_constant(const Interface& i, const Operation& op) {
   } else {
     const std::string translator =
         op.raises.empty() ? "" : fmt::format(", &{}", translator_name(i, op));
+    const std::string mode = op.idempotent ? ", icars::planet::CallMode::idempotent" : "";
     type = fmt::format("icars::planet::Operation<{}({})>", wire_type(op.result), args);
-    init = fmt::format("{}{{\"{}\"{}}}", op.name, op.name, translator);
+    init = fmt::format("{}{{\"{}\"{}{}}}", op.name, op.name, translator, mode);
   }
   const std::string line = fmt::format("  static constexpr {} {};\n", type, init);
   if (line.size() <= kLineLimit + 1) return line;
@@ -463,6 +464,9 @@ void Generator::write_proxy_operation(const Interface& proxied, const Interface&
     return;
   }
   const std::string result = stub_result(op.result);
+  if (op.idempotent) {
+    h_ += "  // Idempotent: re-sent when the link comes back; the servant may run it twice.\n";
+  }
   h_ += wrap("  ", result + " " + op.name, params, " const {\n");
   const std::string ret = op.result.is_void() ? "" : "return ";
   if (is_bound(op.result)) {

@@ -102,6 +102,27 @@ TEST(CppGenerator, ExceptionsDeriveFromRemoteExceptionAndStoreTheirFields) {
   EXPECT_CONTAINS(cpp.source, "channel_(wire.properties().get<std::int32_t>(\"channel\"))");
 }
 
+TEST(CppGenerator, IdempotentOperationsCarryTheirCallMode) {
+  const GeneratedCpp cpp = generate(R"(
+    module a {
+      exception Full { int max; };
+      interface TV {
+        idempotent void set_volume(int volume) raises (Full);
+        idempotent int volume();
+        void volume_up();
+      };
+    }
+  )");
+  const std::string& h = cpp.header;
+  EXPECT_CONTAINS(h,
+                  "set_volume{\"set_volume\", &translate_TV_set_volume, "
+                  "icars::planet::CallMode::idempotent};");
+  EXPECT_CONTAINS(h, "volume{\"volume\", icars::planet::CallMode::idempotent};");
+  EXPECT_CONTAINS(h, "volume_up{\"volume_up\"};");
+  // The stub passes the constant, and with it the mode, to the call.
+  EXPECT_CONTAINS(h, "    return this->call(TV::volume);\n");
+}
+
 TEST(CppGenerator, InterfacesGetADescriptionAProxyAndAServantBase) {
   const GeneratedCpp cpp = generate(R"(
     module a {

@@ -27,6 +27,10 @@ namespace {
 namespace p = icars::planet;
 using namespace std::chrono_literals;
 
+// `idempotent` in the IDL reaches the operation constant the stub passes to the call.
+static_assert(home::TV::set_channel.idempotent());
+static_assert(!home::TV::power.idempotent() && !home::TV::logged.idempotent());
+
 bool wait_until(const std::function<bool()>& condition, std::chrono::milliseconds timeout = 20s) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   while (!condition()) {

@@ -13,8 +13,9 @@ namespace {
 constexpr std::array kKeywords = {
     std::string_view("binary"),    std::string_view("bool"),      std::string_view("byte"),
     std::string_view("double"),    std::string_view("enum"),      std::string_view("event"),
-    std::string_view("exception"), std::string_view("float"),     std::string_view("include"),
-    std::string_view("int"),       std::string_view("interface"), std::string_view("long"),
+    std::string_view("exception"), std::string_view("float"),     std::string_view("idempotent"),
+    std::string_view("include"),   std::string_view("int"),       std::string_view("interface"),
+    std::string_view("long"),
     std::string_view("module"),    std::string_view("oneway"),    std::string_view("raises"),
     std::string_view("sequence"),  std::string_view("short"),     std::string_view("stream"),
     std::string_view("string"),    std::string_view("valued"),    std::string_view("void"),

@@ -53,11 +53,13 @@ TEST(Lexer, TracksLinesAndColumnsAcrossComments) {
 }
 
 TEST(Lexer, KeywordsAreRecognisedOnlyAsWholeWords) {
-  const auto tokens = tokenize("t.idl", "int interval oneway oneway_ish");
+  const auto tokens = tokenize("t.idl", "int interval oneway oneway_ish idempotent idempotently");
   EXPECT_TRUE(tokens[0].is_keyword("int"));
   EXPECT_TRUE(tokens[1].is(TokenKind::identifier));
   EXPECT_TRUE(tokens[2].is_keyword("oneway"));
   EXPECT_TRUE(tokens[3].is(TokenKind::identifier));
+  EXPECT_TRUE(tokens[4].is_keyword("idempotent"));
+  EXPECT_TRUE(tokens[5].is(TokenKind::identifier));
 }
 
 TEST(Lexer, IntegersKeepTheirValue) {

@@ -597,7 +597,14 @@ void FileParser::parse_bases(Interface& i) {
 
 void FileParser::parse_operation(Interface& i) {
   Operation op;
+  const Token& first = peek();
+  op.idempotent = accept_keyword("idempotent");
   op.oneway = accept_keyword("oneway");
+  if (op.oneway && (op.idempotent || peek().is_keyword("idempotent"))) {
+    throw CompileError(first.location, "an operation is both 'idempotent' and 'oneway'",
+                       "one of them (a oneway call has no reply to wait for, so it is never "
+                       "sent again)");
+  }
   op.result = parse_type(0);
   check_use(op.result, Use::result);
   const Token& name_token = peek();

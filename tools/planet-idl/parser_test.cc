@@ -101,6 +101,28 @@ TEST(Parser, BuildsTheTreeOfEveryConstruct) {
   EXPECT_EQ(all[0].owner->name, "Base");
 }
 
+TEST(Parser, IdempotentMarksATwoWayOperation) {
+  const Program program = parse(R"(
+    exception Full { int max; };
+    interface TV {
+      idempotent void set_volume(int volume) raises (Full);
+      idempotent int volume();
+      void volume_up();
+      oneway void log(string text);
+    };
+  )");
+  const Interface& tv = definition<Interface>(program.main->root, 1);
+  ASSERT_EQ(tv.operations.size(), 4u);
+  EXPECT_TRUE(tv.operations[0].idempotent);
+  EXPECT_FALSE(tv.operations[0].oneway);
+  ASSERT_EQ(tv.operations[0].raises.size(), 1u);
+  EXPECT_TRUE(tv.operations[1].idempotent);
+  EXPECT_EQ(tv.operations[1].result.to_idl(), "int");
+  EXPECT_FALSE(tv.operations[2].idempotent);
+  EXPECT_FALSE(tv.operations[3].idempotent);
+  EXPECT_TRUE(tv.operations[3].oneway);
+}
+
 TEST(Parser, LooksNamesUpThroughEnclosingModulesInnermostFirst) {
   const Program program = parse(R"(
     valued P { int outer; };
@@ -210,6 +232,17 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"exception E {}; interface I { oneway void f() raises (E); };",
                 "main.idl:1:47: error: oneway operation 'f' raises exceptions, expected ';' (a "
                 "oneway call has no reply to carry an exception)"},
+        BadCase{"interface I { idempotent oneway void f(); };",
+                "main.idl:1:15: error: an operation is both 'idempotent' and 'oneway', expected "
+                "one of them (a oneway call has no reply to wait for, so it is never sent "
+                "again)"},
+        BadCase{"interface I { oneway idempotent void f(); };",
+                "main.idl:1:15: error: an operation is both 'idempotent' and 'oneway', expected "
+                "one of them (a oneway call has no reply to wait for, so it is never sent "
+                "again)"},
+        BadCase{"interface I { void idempotent(); };",
+                "main.idl:1:20: error: 'idempotent' is a keyword of the IDL, expected an "
+                "operation name"},
         BadCase{"valued V { int x; }; interface I { void f() raises (V); };",
                 "main.idl:1:53: error: 'V' is a valued, not an exception, expected the name of an "
                 "exception defined before this point"},
