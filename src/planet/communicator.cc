@@ -44,6 +44,7 @@ Communicator::Communicator(CommunicatorOptions options)
       work_(std::make_unique<asio::executor_work_guard<asio::io_context::executor_type>>(
           io_->get_executor())),
       manager_(std::make_unique<ConnectionManager>(io_, static_cast<MessageHandler&>(*this), options_.connection, log_)),
+      adapter_([this] { return in_io_thread(); }),
       streams_(std::make_unique<detail::StreamTable>(*log_)),
       sweep_timer_(std::make_unique<asio::steady_timer>(*io_)) {
   if (!options_.token.empty()) manager_->set_token(options_.token);
@@ -51,6 +52,10 @@ Communicator::Communicator(CommunicatorOptions options)
   manager_->set_tls(options_.tls);
   if (options_.access) manager_->set_access_policy(options_.access);
   if (options_.max_pending_calls == 0) throw std::invalid_argument("max_pending_calls must be > 0");
+  // A Peer is up again (its connection is current by now): send the idempotent calls that wait.
+  manager_->add_listener([this](const ConnectionEvent& e) {
+    if (e.peer && e.kind != LinkEventKind::disconnected) resend_waiting(*e.peer);
+  });
   std::promise<std::thread::id> started;
   auto id = started.get_future();
   io_thread_ = std::thread([this, &started] {
@@ -69,6 +74,27 @@ Communicator::Communicator(CommunicatorOptions options)
 }
 
 Communicator::~Communicator() {
+  // Idempotent calls waiting for their link end now, while the io thread still runs the
+  // completions they post; those in flight fail as their connections close below.
+  std::vector<Completion> waiting;
+  {
+    std::lock_guard lock(pending_mutex_);
+    closing_ = true;
+    for (auto it = pending_.begin(); it != pending_.end();) {
+      if (it->second.connection_id == 0) {
+        waiting.push_back(std::move(it->second.done));
+        it = pending_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  }
+  for (auto& done : waiting) {
+    done(std::make_exception_ptr(Error(
+             ErrorKind::disconnected,
+             "communicator destroyed while the call waited for its link to come back")),
+         nullptr);
+  }
   manager_->shutdown();
   {
     // Large messages still being handled finish first (their replies fail: the links are down).
@@ -140,18 +166,31 @@ std::shared_ptr<Link> Communicator::resolve(const ObjectRef& ref,
 
 // --- Request Manager -----------------------------------------------------------------------
 
-std::uint32_t Communicator::start_call(const Link& link, std::vector<std::byte> request,
-                                       std::chrono::milliseconds timeout, Completion done) {
-  auto connection = link.connection();
-  if (!connection) {
+std::uint32_t Communicator::start_call(const std::shared_ptr<Link>& link,
+                                       std::vector<std::byte> request,
+                                       std::chrono::milliseconds timeout, CallMode mode,
+                                       Completion done) {
+  std::shared_ptr<Peer> retry_over;
+  if (mode == CallMode::idempotent) retry_over = std::dynamic_pointer_cast<Peer>(link);
+  auto connection = link->connection();
+  if (!connection && !retry_over) {
     done(std::make_exception_ptr(Error(ErrorKind::disconnected,
-                                       fmt::format("link to {} is down", link.describe()))),
+                                       fmt::format("link to {} is down", link->describe()))),
          nullptr);
     return 0;
   }
   std::uint32_t id = 0;
   {
     std::unique_lock lock(pending_mutex_);
+    if (closing_ && !connection) {
+      lock.unlock();
+      done(std::make_exception_ptr(Error(
+               ErrorKind::disconnected,
+               fmt::format("link to {} is down and the communicator is being destroyed",
+                           link->describe()))),
+           nullptr);
+      return 0;
+    }
     if (pending_.size() >= options_.max_pending_calls) {
       const std::size_t pending = pending_.size();
       lock.unlock();
@@ -165,16 +204,89 @@ std::uint32_t Communicator::start_call(const Link& link, std::vector<std::byte> 
     do {
       id = next_request_id_++;
     } while (id == 0 || pending_.contains(id));
-    pending_.emplace(id, Pending{connection->id(), std::chrono::steady_clock::now() + timeout,
-                                 std::move(done)});
+    detail::store_be32(request.data() + kRequestIdOffset, id);
+    Pending pending{connection ? connection->id() : 0,
+                    std::chrono::steady_clock::now() + timeout, std::move(done), retry_over, {}};
+    // A call that waits keeps its only copy in the table; one sent now keeps a copy to resend.
+    if (retry_over) pending.request = connection ? request : std::move(request);
+    pending_.emplace(id, std::move(pending));
   }
-  detail::store_be32(request.data() + kRequestIdOffset, id);
+  if (!connection) {
+    // The link may have come back between connection() and the registration above, after its
+    // reconnection event: look again now that the call is in the table.
+    send_waiting(id);
+    return id;
+  }
+  const std::uint64_t connection_id = connection->id();
   try {
     connection->send(std::move(request));
   } catch (const Error& e) {
-    cancel_call(id, e);
+    on_send_failed(id, connection_id, e);
   }
   return id;
+}
+
+void Communicator::send_waiting(std::uint32_t request_id) {
+  std::shared_ptr<Peer> peer;
+  {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end() || it->second.connection_id != 0) return;
+    peer = it->second.retry_over;
+  }
+  auto connection = peer->connection();
+  if (!connection) return;  // the next reconnection event sends it
+  std::vector<std::byte> request;
+  {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end() || it->second.connection_id != 0 || closing_) return;
+    it->second.connection_id = connection->id();
+    request = it->second.request;
+  }
+  log_->debug("request {} (idempotent) sent again over {}", request_id, connection->describe());
+  try {
+    connection->send(std::move(request));
+  } catch (const Error& e) {
+    on_send_failed(request_id, connection->id(), e);
+  }
+}
+
+void Communicator::resend_waiting(const Peer& peer) {
+  std::vector<std::uint32_t> waiting;
+  {
+    std::lock_guard lock(pending_mutex_);
+    for (const auto& [id, p] : pending_) {
+      if (p.connection_id == 0 && p.retry_over.get() == &peer) waiting.push_back(id);
+    }
+  }
+  for (auto id : waiting) send_waiting(id);
+}
+
+// A send that throws queued nothing. An idempotent call over a Peer whose connection was closing
+// waits for the next one (looked for again on the io thread, after the close is handled);
+// anything else fails with the send's error.
+void Communicator::on_send_failed(std::uint32_t request_id, std::uint64_t connection_id,
+                                  const Error& error) {
+  if (error.kind() == ErrorKind::disconnected) {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end() || it->second.connection_id != connection_id) return;
+    if (it->second.retry_over && !closing_) {
+      it->second.connection_id = 0;
+      asio::post(*io_, [this, request_id] { send_waiting(request_id); });
+      return;
+    }
+  }
+  Completion done;
+  {
+    std::lock_guard lock(pending_mutex_);
+    auto it = pending_.find(request_id);
+    if (it == pending_.end() || it->second.connection_id != connection_id) return;
+    done = std::move(it->second.done);
+    pending_.erase(it);
+  }
+  done(std::make_exception_ptr(error), nullptr);
 }
 
 bool Communicator::cancel_call(std::uint32_t request_id, const Error& error) {
@@ -222,15 +334,20 @@ void Communicator::complete(const Connection& from, std::uint32_t request_id,
 
 void Communicator::sweep_deadlines() {
   const auto now = std::chrono::steady_clock::now();
-  std::vector<std::uint32_t> expired;
+  std::vector<std::pair<std::uint32_t, std::string>> expired;  // id, the link it waited for
   {
     std::lock_guard lock(pending_mutex_);
     for (const auto& [id, p] : pending_) {
-      if (p.deadline <= now) expired.push_back(id);
+      if (p.deadline > now) continue;
+      expired.emplace_back(id, p.connection_id == 0 ? p.retry_over->describe() : std::string());
     }
   }
-  for (auto id : expired) {
-    cancel_call(id, Error(ErrorKind::timeout, fmt::format("no reply to request {} in time", id)));
+  for (const auto& [id, link] : expired) {
+    cancel_call(id, Error(ErrorKind::timeout,
+                          link.empty() ? fmt::format("no reply to request {} in time", id)
+                                       : fmt::format("no reply to request {} in time: the link "
+                                                     "to {} stayed down",
+                                                     id, link)));
   }
   streams_->sweep(now);
   detail::trim_buffers(std::chrono::seconds(2));
@@ -332,8 +449,8 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
       return;
     }
   }
-  auto servant = adapter_.find(path);
-  if (!servant) {
+  auto call = adapter_.begin_call(path);
+  if (!call) {
     const std::string message = fmt::format("no servant at path '{}'", path);
     log_->debug("{} (method '{}', from {})", message, method, c->describe());
     if (!oneway) send_error(c, request_id, ErrorKind::unimplemented, "planet::NoSuchObject", message);
@@ -348,27 +465,30 @@ void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader
     w.u32(request_id);
   }
   try {
-    auto pending = servant->dispatch(method, r, oneway ? nullptr : &w, current);
+    auto pending = call.run(method, r, oneway ? nullptr : &w, current);
     if (pending) {
       finish_async(c, oneway, request_id, std::string(path), std::string(method),
-                   std::move(*pending));
+                   std::move(*pending), std::move(call));
       return;
     }
   } catch (...) {
+    call = {};
     report_failure(c, oneway, request_id, path, method, std::current_exception());
     return;
   }
+  call = {};  // the servant is done: remove() of its path may return
   if (oneway) return;
   send_reply(c, request_id, path, std::move(reply));
 }
 
 void Communicator::finish_async(const std::shared_ptr<Connection>& c, bool oneway,
                                 std::uint32_t request_id, std::string path, std::string method,
-                                Servant::AsyncResult work) {
+                                Servant::AsyncResult work, ObjectAdapter::Dispatch call) {
   asio::co_spawn(*io_, std::move(work),
-                 [this, c, oneway, request_id, path = std::move(path),
-                  method = std::move(method)](std::exception_ptr e,
-                                              std::vector<std::byte> result) {
+                 [this, c, oneway, request_id, path = std::move(path), method = std::move(method),
+                  call = std::move(call)](std::exception_ptr e,
+                                          std::vector<std::byte> result) mutable {
+                   call = {};  // the coroutine has finished: remove() of its path may return
                    if (e) {
                      report_failure(c, oneway, request_id, path, method, e);
                      return;
@@ -468,11 +588,15 @@ void Communicator::on_close(const std::shared_ptr<Connection>& c, const Error& r
   {
     std::lock_guard lock(pending_mutex_);
     for (auto it = pending_.begin(); it != pending_.end();) {
-      if (it->second.connection_id == c->id()) {
+      if (it->second.connection_id != c->id()) {
+        ++it;
+      } else if (it->second.retry_over && !closing_) {
+        // Idempotent: waits for the Peer's next connection (resend_waiting).
+        it->second.connection_id = 0;
+        ++it;
+      } else {
         failed.push_back(std::move(it->second.done));
         it = pending_.erase(it);
-      } else {
-        ++it;
       }
     }
   }

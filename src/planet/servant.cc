@@ -20,6 +20,10 @@ void fail_arity(Reader& r, std::string_view method, std::size_t expected, std::s
                      expected == 1 ? "" : "s", actual));
 }
 
+// Servant calls running on this thread (synchronous dispatches, nested ones included): remove()
+// called from inside one must not wait, it might wait for itself.
+thread_local int t_running_calls = 0;
+
 }  // namespace detail
 
 std::optional<Servant::AsyncResult> Servant::dispatch(std::string_view method, Reader& args,
@@ -33,29 +37,94 @@ std::optional<Servant::AsyncResult> Servant::dispatch(std::string_view method, R
   return it->second(args, result, current);
 }
 
+// --- ObjectAdapter::Dispatch ----------------------------------------------------------------
+
+ObjectAdapter::Dispatch& ObjectAdapter::Dispatch::operator=(Dispatch&& other) noexcept {
+  if (this != &other) {
+    release();
+    servant_ = std::move(other.servant_);
+    calls_ = std::move(other.calls_);
+  }
+  return *this;
+}
+
+ObjectAdapter::Dispatch::~Dispatch() { release(); }
+
+// Drops the servant before counting the call out, so that when this held the last reference the
+// servant is destroyed before a waiting remove() returns.
+void ObjectAdapter::Dispatch::release() {
+  servant_.reset();
+  if (!calls_) return;
+  auto calls = std::move(calls_);
+  std::lock_guard lock(calls->mutex);
+  if (--calls->count == 0) calls->idle.notify_all();
+}
+
+std::optional<Servant::AsyncResult> ObjectAdapter::Dispatch::run(std::string_view method,
+                                                                 Reader& args, Writer* result,
+                                                                 const Current& current) {
+  struct Running {
+    Running() { ++detail::t_running_calls; }
+    ~Running() { --detail::t_running_calls; }
+    Running(const Running&) = delete;
+    Running& operator=(const Running&) = delete;
+  } running;
+  return servant_->dispatch(method, args, result, current);
+}
+
+// --- ObjectAdapter -------------------------------------------------------------------------
+
 void ObjectAdapter::add(const std::string& path, std::shared_ptr<Servant> servant) {
   if (path.empty() || path.front() != '/') {
     throw std::invalid_argument(fmt::format("servant path '{}' must start with '/'", path));
   }
   if (!servant) throw std::invalid_argument("null servant for path " + path);
   std::unique_lock lock(mutex_);
-  if (!servants_.emplace(path, std::move(servant)).second) {
+  if (!servants_.emplace(path, Entry{std::move(servant), std::make_shared<detail::ActiveCalls>()})
+           .second) {
     throw std::invalid_argument(fmt::format("a servant is already registered at '{}'", path));
   }
 }
 
 bool ObjectAdapter::remove(std::string_view path) {
-  std::unique_lock lock(mutex_);
-  auto it = servants_.find(path);
-  if (it == servants_.end()) return false;
-  servants_.erase(it);
+  Entry removed;
+  {
+    std::unique_lock lock(mutex_);
+    auto it = servants_.find(path);
+    if (it == servants_.end()) return false;
+    removed = std::move(it->second);
+    servants_.erase(it);
+  }
+  // Every call that found the servant counted itself in under the adapter's lock, so none can
+  // start after this point.
+  removed.servant.reset();
+  const bool may_wait =
+      detail::t_running_calls == 0 && !(on_io_thread_ && on_io_thread_());
+  if (may_wait) {
+    std::unique_lock lock(removed.calls->mutex);
+    removed.calls->idle.wait(lock, [&] { return removed.calls->count == 0; });
+  }
   return true;
 }
 
 std::shared_ptr<Servant> ObjectAdapter::find(std::string_view path) const {
   std::shared_lock lock(mutex_);
   auto it = servants_.find(path);
-  return it == servants_.end() ? nullptr : it->second;
+  return it == servants_.end() ? nullptr : it->second.servant;
+}
+
+ObjectAdapter::Dispatch ObjectAdapter::begin_call(std::string_view path) const {
+  Dispatch call;
+  std::shared_lock lock(mutex_);
+  auto it = servants_.find(path);
+  if (it == servants_.end()) return call;
+  {
+    std::lock_guard count_lock(it->second.calls->mutex);
+    ++it->second.calls->count;
+  }
+  call.servant_ = it->second.servant;
+  call.calls_ = it->second.calls;
+  return call;
 }
 
 std::vector<std::string> ObjectAdapter::paths() const {

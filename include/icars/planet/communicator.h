@@ -100,23 +100,34 @@ class Communicator final : private MessageHandler {
   // Assigns a request id (written into `request` at kRequestIdOffset), registers `done` in the
   // pending-request table and sends the request over `link`. `done` runs exactly once: with the
   // REPLY's reader, or with the error (disconnected, overloaded, timeout, remote exception).
-  // It may run inline when the link is down. Returns the request id.
-  std::uint32_t start_call(const Link& link, std::vector<std::byte> request,
-                           std::chrono::milliseconds timeout, Completion done);
-  // Completes a pending call with `error` if it is still pending; false if it already completed.
+  // It may run inline when the link is down. Returns the request id (0 when `done` already ran
+  // because the call could not be registered or sent at all).
+  //
+  // With CallMode::idempotent over a Peer, a call that finds the link down, or whose connection
+  // closes before the reply, stays in the table and is sent again, with the same request id,
+  // each time the Peer reconnects, until it is answered, its deadline passes (timeout),
+  // cancel_call ends it or the communicator is destroyed (disconnected). A late reply over an
+  // earlier connection is ignored. Over any other link (a server-side Connection, which never
+  // comes back) both modes fail with disconnected. Thread-safe.
+  std::uint32_t start_call(const std::shared_ptr<Link>& link, std::vector<std::byte> request,
+                           std::chrono::milliseconds timeout, CallMode mode, Completion done);
+  // Completes a pending call (sent, or waiting for its link) with `error` if it is still
+  // pending; false if it already completed. A reply that arrives later is ignored.
   bool cancel_call(std::uint32_t request_id, const Error& error);
   // Sends a NOTIFY; throws Error(disconnected/overloaded) when it cannot be queued.
   void send_oneway(const Link& link, std::vector<std::byte> request);
-  std::size_t pending_calls() const;
+  std::size_t pending_calls() const;  // sent and awaiting replies, or waiting for their link
 
   // Internal: the stream channels (stream.h).
   detail::StreamTable& stream_table() { return *streams_; }
 
  private:
   struct Pending {
-    std::uint64_t connection_id = 0;
+    std::uint64_t connection_id = 0;  // where it was sent; 0 while it waits for its Peer
     std::chrono::steady_clock::time_point deadline;
     Completion done;
+    std::shared_ptr<Peer> retry_over;  // idempotent calls over a Peer: re-sent on reconnection
+    std::vector<std::byte> request;    // kept to be sent again (retry_over set)
   };
 
   void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
@@ -129,7 +140,8 @@ class Communicator final : private MessageHandler {
 
   void dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway);
   void finish_async(const std::shared_ptr<Connection>& c, bool oneway, std::uint32_t request_id,
-                    std::string path, std::string method, Servant::AsyncResult work);
+                    std::string path, std::string method, Servant::AsyncResult work,
+                    ObjectAdapter::Dispatch call);
   void report_failure(const std::shared_ptr<Connection>& c, bool oneway, std::uint32_t request_id,
                       std::string_view path, std::string_view method,
                       const std::exception_ptr& failure);
@@ -141,6 +153,11 @@ class Communicator final : private MessageHandler {
   void complete(const Connection& from, std::uint32_t request_id, std::exception_ptr error,
                 Reader* result);
   void sweep_deadlines();
+  // Idempotent calls (Pending::retry_over): sends a waiting call if its Peer is up now; on a
+  // failed send, puts it back to wait or fails it.
+  void send_waiting(std::uint32_t request_id);
+  void resend_waiting(const Peer& peer);
+  void on_send_failed(std::uint32_t request_id, std::uint64_t connection_id, const Error& error);
 
   CommunicatorOptions options_;
   std::shared_ptr<spdlog::logger> log_;
@@ -154,6 +171,7 @@ class Communicator final : private MessageHandler {
   mutable std::mutex pending_mutex_;
   std::unordered_map<std::uint32_t, Pending> pending_;
   std::uint32_t next_request_id_ = 1;
+  bool closing_ = false;  // the destructor started: no call waits for its link any more
 
   std::thread io_thread_;
   std::thread::id io_thread_id_;

@@ -10,7 +10,10 @@
 //   calc.notify(Calculator::log, "hello");                                  // one-way
 //
 // Failures arrive as Error (disconnected, overloaded, timeout, unimplemented, bad_data) or as
-// RemoteException for exceptions the servant raised. Asynchronous calls follow asio's
+// RemoteException for exceptions the servant raised. An operation declared idempotent
+// (CallMode::idempotent, IDL `idempotent`) is not failed with `disconnected` over a reconnecting
+// link (Peer): it is sent again once the link is back, until its deadline (see
+// Communicator::start_call); other calls are sent at most once. Asynchronous calls follow asio's
 // completion-token model: completion signature void(std::exception_ptr, R) (void(exception_ptr)
 // when R is void); the handler runs exactly once, on its associated executor (the
 // communicator's io thread by default), never inside async_call itself.
@@ -53,7 +56,8 @@ struct CompletionSignature<void> {
 class CallObserver {
  public:
   virtual ~CallObserver() = default;
-  // The request left as request `request_id` of this communicator.
+  // The request left as request `request_id` of this communicator (an idempotent call waiting
+  // for its link is reported once, when it is registered; a resend keeps the id).
   virtual void sent(std::uint32_t request_id, const std::string& path, std::string_view method) = 0;
   // Exactly once per call, after `sent`: `error` is null when a well-formed reply arrived. A
   // call that could not be sent at all (the link is down) ends with request id 0 and no `sent`.
@@ -155,7 +159,8 @@ class Proxy {
     auto request = encode_request(RmiCode::call, op.name(), args...);
     auto observed = observe(op.name());
     const std::uint32_t id = communicator_->start_call(
-        *link_, std::move(request), timeout_, [&state, observed](std::exception_ptr e, Reader* r) {
+        link_, std::move(request), timeout_, op.mode(),
+        [&state, observed](std::exception_ptr e, Reader* r) {
           if (!e) {
             try {
               if constexpr (std::is_void_v<R>) {
@@ -189,8 +194,8 @@ class Proxy {
                   Token&& token) const {
     using Signature = typename CompletionSignature<R>::type;
     return asio::async_initiate<Token, Signature>(
-        [this, name = op.name(), translator = op.translator()](auto handler,
-                                                               std::tuple<A...> call_args) {
+        [this, name = op.name(), translator = op.translator(), mode = op.mode()](
+            auto handler, std::tuple<A...> call_args) {
           check_bound(name);
           auto request = std::apply(
               [&](const A&... a) { return encode_request(RmiCode::call, name, a...); }, call_args);
@@ -198,7 +203,7 @@ class Proxy {
               asio::get_associated_executor(handler, communicator_->executor()));
           auto observed = observe(name);
           const std::uint32_t id = communicator_->start_call(
-              *link_, std::move(request), timeout_,
+              link_, std::move(request), timeout_, mode,
               [handler = std::move(handler), work = std::move(work), translator, observed](
                   std::exception_ptr e, Reader* r) mutable {
                 std::conditional_t<std::is_void_v<R>, char, R> value{};

@@ -87,6 +87,21 @@ std::shared_ptr<p::Servant> make_echo_servant(p::Communicator& communicator) {
   });
   s->implement(Echo::caller_pun,
                [](const p::Current& current) { return current.connection->peer_pun(); });
+  struct Lingers {
+    std::atomic<std::int64_t> started{0};
+    std::atomic<std::int64_t> finished{0};
+  };
+  auto lingers = std::make_shared<Lingers>();
+  auto linger = [&communicator, lingers](std::int32_t ms) -> asio::awaitable<std::int64_t> {
+    ++lingers->started;
+    asio::steady_timer timer(communicator.io());
+    timer.expires_after(std::chrono::milliseconds(ms));
+    co_await timer.async_wait(asio::use_awaitable);
+    co_return ++lingers->finished;
+  };
+  s->implement(Echo::linger, linger);
+  s->implement(Echo::linger_once, linger);
+  s->implement(Echo::lingers_started, [lingers] { return lingers->started.load(); });
   s->implement(Echo::call_back, [&communicator](p::Ref<Callback> ref, std::string text,
                                                 const p::Current& current)
                                      -> asio::awaitable<std::string> {

@@ -121,6 +121,15 @@ struct Echo {
       "call_back"};
   // The PUN the server sees for the calling connection.
   static constexpr p::Operation<std::string()> caller_pun{"caller_pun"};
+  // Both answer after `ms` milliseconds (a timer: the io thread stays free) with how many times
+  // either has run to its end so far, this one included. `linger` is declared idempotent, so a
+  // caller sends it again after a reconnection; `linger_once` is at most once.
+  static constexpr p::Operation<std::int64_t(std::int32_t)> linger{"linger",
+                                                                  p::CallMode::idempotent};
+  static constexpr p::Operation<std::int64_t(std::int32_t)> linger_once{"linger_once"};
+  // How many times `linger` or `linger_once` started (ran or is running).
+  static constexpr p::Operation<std::int64_t()> lingers_started{"lingers_started",
+                                                                p::CallMode::idempotent};
 };
 
 // A listener of Ticks (hosted by each subscriber process) and the source it subscribes to.
