@@ -4,7 +4,23 @@
 
 #include <asio/post.hpp>
 
+#include "bad_datagram_reporter.h"
+
 namespace icars::coros {
+
+namespace {
+
+void emit_bad_datagrams(Agent& agent, const BadDatagramReporter::Report& r) {
+  agent.emit({{"event", "bad_datagram"},
+              {"from", r.from},
+              {"source", r.source},
+              {"error", r.error},
+              {"count", r.count},
+              {"malformed", r.malformed},
+              {"refused", r.refused}});
+}
+
+}  // namespace
 
 void MessageProcessor::process(const Datagram& datagram, const Envelope& envelope) const {
   const auto it = handlers_.find(static_cast<std::uint16_t>(datagram.code));
@@ -21,7 +37,9 @@ void Timer::cancel() {
 }
 
 Agent::Agent(AgentConfiguration config)
-    : config_(std::move(config)), neighbors_(config_.neighbor_expiry) {
+    : config_(std::move(config)),
+      neighbors_(config_.neighbor_expiry),
+      bad_datagram_reports_(std::make_unique<BadDatagramReporter>()) {
   if (config_.id.empty()) throw CorosError("an agent needs an id");
   transport_ = std::make_unique<UdpTransport>(io_, config_.transport);
 }
@@ -54,10 +72,7 @@ void Agent::start() {
     transport_->start(
         [this](const Datagram& d, const asio::ip::udp::endpoint& from) { on_datagram(d, from); },
         [this](const std::string& what, const asio::ip::udp::endpoint& from) {
-          ++bad_datagrams_;
-          emit({{"event", "bad_datagram"},
-                {"from", fmt::format("{}:{}", from.address().to_string(), from.port())},
-                {"error", what}});
+          on_bad_datagram(from, true, what);
         });
     const auto self = transport_->local_endpoint();
     emit({{"event", "started"},
@@ -82,7 +97,16 @@ void Agent::stop() {
       for (const auto& weak : timers_) {
         if (auto t = weak.lock()) t->cancel();
       }
+      bad_datagram_timer_.cancel();
+      for (const auto& r : bad_datagram_reports_->flush()) emit_bad_datagrams(*this, r);
       const TransportStats s = transport_->stats();
+      nlohmann::json by_source = nlohmann::json::object();
+      for (const auto& [source, d] : s.dropped_by_source) {
+        by_source[source] = {{"malformed", d.malformed},
+                             {"rejected_unsigned", d.rejected_unsigned},
+                             {"rejected_bad_tag", d.rejected_bad_tag},
+                             {"rejected_replayed", d.rejected_replayed}};
+      }
       emit({{"event", "stopped"},
             {"datagrams",
              {{"sent", s.sent},
@@ -90,7 +114,9 @@ void Agent::stop() {
               {"malformed", s.malformed},
               {"rejected_unsigned", s.rejected_unsigned},
               {"rejected_bad_tag", s.rejected_bad_tag},
-              {"rejected_replayed", s.rejected_replayed}}}});
+              {"rejected_replayed", s.rejected_replayed},
+              {"refused", bad_datagrams_ - s.malformed},
+              {"dropped_by_source", std::move(by_source)}}}});
       transport_->close();
       io_.stop();
     });
@@ -110,11 +136,35 @@ void Agent::on_datagram(const Datagram& datagram, const asio::ip::udp::endpoint&
   try {
     processor_.process(datagram, Envelope{datagram.sender, from});
   } catch (const std::exception& e) {  // a handler's bug must not take the agent down
-    ++bad_datagrams_;
-    emit({{"event", "bad_datagram"},
-          {"from", fmt::format("{}:{}", from.address().to_string(), from.port())},
-          {"error", e.what()}});
+    on_bad_datagram(from, false, e.what());
   }
+}
+
+void Agent::on_bad_datagram(const asio::ip::udp::endpoint& from, bool malformed, std::string error) {
+  ++bad_datagrams_;
+  const auto reason =
+      malformed ? BadDatagramReporter::Reason::malformed : BadDatagramReporter::Reason::refused;
+  if (auto report = bad_datagram_reports_->add(from, reason, std::move(error),
+                                               std::chrono::steady_clock::now())) {
+    emit_bad_datagrams(*this, *report);
+  }
+  arm_bad_datagram_timer();
+}
+
+void Agent::arm_bad_datagram_timer() {
+  if (bad_datagram_timer_armed_) return;
+  const auto next = bad_datagram_reports_->next_due();
+  if (!next) return;
+  bad_datagram_timer_armed_ = true;
+  bad_datagram_timer_.expires_at(*next);
+  bad_datagram_timer_.async_wait([this](const std::error_code& ec) {
+    bad_datagram_timer_armed_ = false;
+    if (ec) return;
+    for (const auto& r : bad_datagram_reports_->due(std::chrono::steady_clock::now())) {
+      emit_bad_datagrams(*this, r);
+    }
+    arm_bad_datagram_timer();
+  });
 }
 
 void Agent::schedule(const std::shared_ptr<Timer>& timer, std::chrono::milliseconds delay,

@@ -152,6 +152,22 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
     ++(stats.*field);
   }
 
+  // Counts a dropped datagram by reason, in total and for its source address.
+  void count_drop(std::uint64_t TransportStats::*total,
+                  std::uint64_t TransportStats::SourceDrops::*by_source,
+                  const asio::ip::udp::endpoint& from) {
+    std::string source = from.address().to_string();
+    std::lock_guard lock(stats_mutex);
+    ++(stats.*total);
+    auto& sources = stats.dropped_by_source;
+    auto it = sources.find(source);
+    if (it == sources.end()) {
+      if (sources.size() >= TransportStats::kMaxDropSources) source = "other";
+      it = sources.try_emplace(std::move(source)).first;
+    }
+    ++(it->second.*by_source);
+  }
+
   void receive(const std::shared_ptr<Receive>& r) {
     r->socket->async_receive_from(
         asio::buffer(r->buffer), r->from,
@@ -171,7 +187,7 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
     try {
       d = decode_datagram(bytes);
     } catch (const CorosError& e) {
-      count(&TransportStats::malformed);
+      count_drop(&TransportStats::malformed, &TransportStats::SourceDrops::malformed, from);
       if (on_error) on_error(e.what(), from);
       return;
     }
@@ -198,9 +214,14 @@ struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
 
   // Counts the datagram and warns, at most once a second per source address.
   void reject(Rejection why, const Datagram& d, const asio::ip::udp::endpoint& from) {
-    count(why == Rejection::unsigned_datagram ? &TransportStats::rejected_unsigned
-          : why == Rejection::bad_tag         ? &TransportStats::rejected_bad_tag
-                                              : &TransportStats::rejected_replayed);
+    using Drops = TransportStats::SourceDrops;
+    if (why == Rejection::unsigned_datagram) {
+      count_drop(&TransportStats::rejected_unsigned, &Drops::rejected_unsigned, from);
+    } else if (why == Rejection::bad_tag) {
+      count_drop(&TransportStats::rejected_bad_tag, &Drops::rejected_bad_tag, from);
+    } else {
+      count_drop(&TransportStats::rejected_replayed, &Drops::rejected_replayed, from);
+    }
     const auto now = std::chrono::steady_clock::now();
     auto it = warned.find(from);
     if (it != warned.end() && now - it->second.at < std::chrono::seconds(1)) {

@@ -20,7 +20,10 @@
 //
 // A datagram that cannot be decoded, or that a handler rejects (a CorosError or any other
 // exception), is counted and reported through the event sink as {"event":"bad_datagram",...};
-// it never stops the agent. A well-formed message whose code no operator of this agent
+// it never stops the agent. Reports are aggregated per source address: the first bad datagram
+// of a source is reported at once, the ones after it at most once a second in one event with
+// their "count", so a flood of garbage costs a few events a second and the counts add up to
+// bad_datagrams() (the rest are reported when the agent stops). A well-formed message whose code no operator of this agent
 // handles (another application sharing the fleet's port) is ignored.
 #pragma once
 
@@ -44,6 +47,7 @@
 namespace icars::coros {
 
 class Agent;
+class BadDatagramReporter;
 
 // Where a message came from: the sending agent's id and unicast endpoint.
 struct Envelope {
@@ -105,6 +109,7 @@ class Timer {
 
  private:
   friend class Agent;
+class BadDatagramReporter;
   explicit Timer(asio::io_context& io) : timer_(io) {}
   asio::steady_timer timer_;
   bool active_ = true;
@@ -180,6 +185,9 @@ class Agent {
 
  private:
   void on_datagram(const Datagram& datagram, const asio::ip::udp::endpoint& from);
+  // Counts a bad datagram and emits what its source's aggregation says is due.
+  void on_bad_datagram(const asio::ip::udp::endpoint& from, bool malformed, std::string error);
+  void arm_bad_datagram_timer();
   std::shared_ptr<Timer> start_timer(std::chrono::milliseconds delay, std::function<void()> fn,
                                      bool repeat);
   void schedule(const std::shared_ptr<Timer>& timer, std::chrono::milliseconds delay,
@@ -198,6 +206,9 @@ class Agent {
   int load_ = 0;
   double x_ = 0, y_ = 0;
   std::uint64_t bad_datagrams_ = 0;
+  std::unique_ptr<BadDatagramReporter> bad_datagram_reports_;
+  asio::steady_timer bad_datagram_timer_{io_};
+  bool bad_datagram_timer_armed_ = false;
   std::chrono::steady_clock::time_point started_{};
   std::thread thread_;
   bool started_flag_ = false;

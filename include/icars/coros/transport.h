@@ -12,8 +12,9 @@
 //
 // With a fleet key (TransportOptions::key) every datagram sent is signed and every one received
 // is verified before delivery (authentication.h): unsigned, badly tagged and replayed datagrams
-// are counted by reason in TransportStats and logged at warn, at most once a second per source
-// address, and never reach the receiver. Without a key the transport refuses to exist unless
+// are counted by reason and by source address in TransportStats and logged at warn, at most
+// once a second per source address, and never reach the receiver. Malformed datagrams are
+// counted the same way and handed to the ErrorSink (the agent aggregates them into events). Without a key the transport refuses to exist unless
 // `insecure` is set; it then sends unsigned datagrams and accepts any well-formed one.
 //
 // FaultInjection is the test hook: it drops, duplicates and delays (so reorders) outgoing
@@ -25,6 +26,7 @@
 #include <asio/steady_timer.hpp>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <random>
@@ -72,6 +74,17 @@ struct TransportStats {
   std::uint64_t rejected() const {
     return rejected_unsigned + rejected_bad_tag + rejected_replayed;
   }
+  // The same drops (malformed and rejected) by source IP address: the first kMaxDropSources
+  // addresses heard from each get an entry, later ones are summed under "other", so a flood
+  // from many addresses cannot grow it without bound.
+  struct SourceDrops {
+    std::uint64_t malformed = 0, rejected_unsigned = 0, rejected_bad_tag = 0, rejected_replayed = 0;
+    std::uint64_t total() const {
+      return malformed + rejected_unsigned + rejected_bad_tag + rejected_replayed;
+    }
+  };
+  static constexpr std::size_t kMaxDropSources = 256;
+  std::map<std::string, SourceDrops> dropped_by_source;
 };
 
 class UdpTransport {
