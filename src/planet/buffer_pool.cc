@@ -1,5 +1,9 @@
 #include "icars/planet/detail/buffer_pool.h"
 
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include <map>
 #include <mutex>
 
@@ -52,7 +56,7 @@ void give_buffer(std::vector<std::byte>&& buffer) {
 }
 
 void trim_buffers(std::chrono::steady_clock::duration idle) {
-  std::vector<std::vector<std::byte>> released;  // freed outside the lock
+  std::vector<std::vector<std::byte>> released;
   {
     Pool& p = pool();
     std::lock_guard lock(p.mutex);
@@ -68,6 +72,14 @@ void trim_buffers(std::chrono::steady_clock::duration idle) {
       }
     }
   }
+  if (released.empty()) return;
+  released.clear();  // freed outside the lock
+#if defined(__GLIBC__)
+  // glibc keeps freed heap memory for reuse (its mmap threshold rises after large frees, so
+  // later 1 MiB blocks come from the heap); once a burst of large messages is over, give the
+  // free pages back to the system so an idle process shrinks again.
+  ::malloc_trim(0);
+#endif
 }
 
 std::size_t pooled_bytes() {

@@ -19,6 +19,7 @@
 #include <stdexcept>
 
 #include "icars/planet/serializer.h"
+#include "transport_limits.h"
 
 namespace icars::planet {
 
@@ -31,6 +32,17 @@ constexpr std::size_t kMaxBatchFrames = 64;
 constexpr std::uint32_t kGrantAheadFrames = 64;
 // Incoming multi-frame messages are assembled in blocks of this size.
 constexpr std::size_t kBlockBytes = 1u << 20;
+// The receive-budget reservation of one DATA_ACK(more): the frames it grants.
+constexpr std::size_t kAckBytes = std::size_t{kAckEvery} * kMaxFramePayload;
+
+// " (N more since the last report)" for a rate-limited log line that held N lines back.
+std::string held_back(std::uint64_t n) {
+  return n == 0 ? std::string() : fmt::format(" ({} more since the last report)", n);
+}
+
+std::int64_t ms(std::chrono::steady_clock::duration d) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(d).count();
+}
 
 std::vector<std::byte> frame_bytes(const FrameHeader& h, std::span<const std::byte> payload) {
   std::vector<std::byte> out(kFrameHeaderSize + payload.size());
@@ -56,6 +68,15 @@ void ConnectionOptions::validate() const {
     throw std::invalid_argument("receive_budget must be at least max_message_size");
   }
   if (max_connections == 0) throw std::invalid_argument("max_connections must be > 0");
+  if (max_connections_per_address == 0) {
+    throw std::invalid_argument("max_connections_per_address must be > 0");
+  }
+  if (message_progress_timeout.count() <= 0) {
+    throw std::invalid_argument("message_progress_timeout must be > 0");
+  }
+  if (total_receive_budget < max_message_size) {
+    throw std::invalid_argument("total_receive_budget must be at least max_message_size");
+  }
   if (max_incomplete_messages < kMaxInterleavedMessages) {
     throw std::invalid_argument("max_incomplete_messages must be at least 16 (protocol minimum)");
   }
@@ -69,6 +90,8 @@ struct Connection::Outgoing {
   std::uint32_t credit = kWindowFrames;  // frames that may be sent before the next DATA_ACK
   bool aborted = false;  // refused by the peer: only an empty final frame is still sent
   SendHandler on_sent;
+  // Since when the message has had frames left and no credit (waiting for a DATA_ACK).
+  std::optional<std::chrono::steady_clock::time_point> starved_since;
 };
 
 struct Connection::Incoming {
@@ -77,6 +100,8 @@ struct Connection::Incoming {
   std::uint32_t granted = kWindowFrames;  // frames the sender may send so far
   std::uint32_t owed_acks = 0;            // acks held back by the receive budget
   bool refused = false;
+  std::size_t reserved = 0;  // its share of the total receive budget
+  std::chrono::steady_clock::time_point last_progress;  // last frame, or last credit granted
   // The message so far, in blocks of kBlockBytes: growing a large message never copies what
   // arrived before (no reallocation on the io thread).
   std::vector<std::vector<std::byte>> blocks;
@@ -148,7 +173,8 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
                        ConnectionRole role, std::string local_pun,
                        const ConnectionOptions& options, MessageHandler& handler,
                        std::shared_ptr<spdlog::logger> logger, Acceptor acceptor,
-                       ConnectionSecurity security)
+                       ConnectionSecurity security,
+                       std::shared_ptr<detail::TransportLimits> limits)
     : io_(std::move(io)),
       socket_(std::move(socket)),
       timer_(socket_.get_executor()),
@@ -160,13 +186,17 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
       acceptor_(std::move(acceptor)),
       token_(std::move(security.token)),
       id_(next_id_.fetch_add(1)),
+      limits_(limits ? std::move(limits)
+                     : std::make_shared<detail::TransportLimits>(options.total_receive_budget,
+                                                                 kAckBytes)),
       // Not zero-filled: a connection carrying small messages only ever touches the first pages.
       rbuf_(std::make_unique_for_overwrite<std::byte[]>(kReadBufferSize)) {
   options_.validate();
   std::error_code ec;
   socket_.set_option(asio::ip::tcp::no_delay(true), ec);
   const auto remote = socket_.remote_endpoint(ec);
-  remote_address_ = ec ? "unknown" : fmt::format("{}:{}", remote.address().to_string(), remote.port());
+  remote_ip_ = ec ? "unknown" : remote.address().to_string();
+  remote_address_ = ec ? "unknown" : fmt::format("{}:{}", remote_ip_, remote.port());
   batch_headers_.reserve(kMaxBatchFrames);
   if (security.tls) {
     tls_ = std::make_unique<Tls>(socket_, *security.tls);
@@ -205,8 +235,17 @@ void Connection::start() {
           const std::string detail =
               verify != X509_V_OK ? fmt::format(" ({})", X509_verify_cert_error_string(verify))
                                   : std::string();
-          self->fail(ErrorKind::refused, fmt::format("TLS handshake with {} failed: {}{}",
-                                                     self->remote_address_, ec.message(), detail));
+          const std::string reason = fmt::format("TLS handshake with {} failed: {}{}",
+                                                 self->remote_address_, ec.message(), detail);
+          // A server hears of every client that fails (a wrong CA, plaintext, a scanner), so
+          // the line is rate-limited per address.
+          const bool server = self->role_ == ConnectionRole::server;
+          if (server) {
+            if (auto held = self->limits_->tls_failures.admit(self->remote_ip_)) {
+              self->log_->warn("{}{}", reason, held_back(*held));
+            }
+          }
+          self->fail(ErrorKind::refused, reason, server);
           return;
         }
         std::string name = certificate_common_name(self->tls_->stream.native_handle());
@@ -412,6 +451,7 @@ void Connection::write_batch() {
       if (n != 0) batch_.emplace_back(asio::buffer(m.payload.data() + m.offset, n));
       m.offset += n;
       --m.credit;
+      if (m.credit == 0 && !m.starved_since) m.starved_since = std::chrono::steady_clock::now();
       bytes += h.length;
       batch_payload_bytes_ += n;
       ++batch_frames_;
@@ -429,6 +469,7 @@ void Connection::write_batch() {
     writing_ = false;
     return;
   }
+  write_started_ = std::chrono::steady_clock::now();
   lock.unlock();
   auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
     self->on_written(ec, n);
@@ -447,6 +488,7 @@ void Connection::on_written(const std::error_code& ec, std::size_t n) {
   {
     std::lock_guard lock(send_mutex_);
     done.swap(batch_done_);
+    write_started_.reset();
     batch_control_.clear();
     retired_.clear();
     if (!ec) {
@@ -520,6 +562,7 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     std::atomic<bool>& flag;
     ~HandlingRead() { flag = false; }
   } handling{handling_read_};
+  bool completed_frame = false;
   while (state_.load() != State::closed && !close_after_flush_) {
     const std::span<const std::byte> avail(rbuf_.get() + rbegin_, rend_ - rbegin_);
     const HeaderParse parsed = parse_header(avail);
@@ -531,7 +574,7 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
         w.u8(kConnectDeny);
         w.str(parsed.error.substr(0, kMaxControlPayload - 16));
         send_control(FrameCode::connect_ack, std::move(payload));
-        log_->warn("denied {}: {}", remote_address_, parsed.error);
+        log_denial(remote_address_, parsed.error);
         close_after_flush_ = true;
         return;
       }
@@ -542,8 +585,16 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     const FrameHeader& h = *parsed.header;
     if (!handle_frame(h, avail.subspan(kFrameHeaderSize, h.payload_size()))) return;
     rbegin_ += h.length;
+    completed_frame = true;
   }
-  if (rbegin_ == rend_) rbegin_ = rend_ = 0;
+  // A frame started must complete within message_progress_timeout (checked in on_timer): bytes
+  // trickling in never make a frame, but keep the heartbeat timeout from firing.
+  if (rbegin_ == rend_) {
+    rbegin_ = rend_ = 0;
+    partial_frame_since_.reset();
+  } else if (completed_frame || !partial_frame_since_) {
+    partial_frame_since_ = last_received_;
+  }
   read_more();
 }
 
@@ -593,6 +644,7 @@ bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte>
     return false;
   }
   request.remote_address = remote_address_;
+  request.remote_ip = remote_ip_;
   request.certificate_name = peer_certificate_name();
   if (h.version_minor > kProtocolMinor) {
     log_->debug("{} speaks {}.{}; answering as {}.{}", remote_address_, h.version_major,
@@ -609,7 +661,7 @@ bool Connection::handle_connect(const FrameHeader& h, std::span<const std::byte>
     w.u8(kConnectDeny);
     w.str(*deny);
     send_control(FrameCode::connect_ack, std::move(reply));
-    log_->warn("denied {} ({}): {}", pun, remote_address_, *deny);
+    log_denial(fmt::format("{} ({})", pun, remote_address_), *deny);
     close_after_flush_ = true;
     return false;
   }
@@ -666,6 +718,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     fail(ErrorKind::bad_data, fmt::format("protocol error from {}: {}", describe(), what));
     return false;
   };
+  const auto now = std::chrono::steady_clock::now();
 
   if (h.frame_no == 0) {
     if (in) return protocol_error(fmt::format("message #{} started twice", h.msg_no));
@@ -688,8 +741,25 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     incoming_.push_back(std::make_unique<Incoming>());
     in = incoming_.back().get();
     in->msg_no = h.msg_no;
+    in->last_progress = now;
     spare_used_ = true;
     it = std::prev(incoming_.end());
+    // The sender may send a whole window without an ack: reserve it in the budget of all
+    // connections, or refuse the message while the budget is spent (one message at a time may
+    // exceed it, so that something always completes and frees room).
+    detail::ReceiveBudget& budget = limits_->receive;
+    if (!budget.fits(std::size_t{kWindowFrames} * kMaxFramePayload) && !budget.claim(id_, h.msg_no)) {
+      in->next_frame = 1;
+      in->refused = true;
+      send_data_ack(h.msg_no, AckCode::no_more);
+      const std::string reason = fmt::format(
+          "message #{} from {} refused: the receive budget of all connections "
+          "(total_receive_budget, {} bytes) is spent; retry later",
+          h.msg_no, describe(), budget.limit());
+      if (auto held = limits_->refusals.admit(remote_ip_)) log_->warn("{}{}", reason, held_back(*held));
+      handler_.on_message_refused(shared_from_this(), payload, reason);
+      return state_.load() != State::closed;
+    }
   } else if (!in) {
     return protocol_error(fmt::format("frame #{} of unknown message #{}", h.frame_no, h.msg_no));
   } else if (h.frame_no != in->next_frame) {
@@ -702,6 +772,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
                                       h.frame_no, h.msg_no, in->granted));
   }
   ++in->next_frame;
+  in->last_progress = now;
   if (in->refused) {  // frames already in flight when we said NO_MORE
     if (h.final) incoming_.erase(it);
     return true;
@@ -714,6 +785,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     send_data_ack(h.msg_no, AckCode::no_more);
     in->refused = true;
     incomplete_bytes_ -= in->size;
+    forget_incoming(*in);
     // The first block holds the first frame, which names the request to answer.
     const std::vector<std::byte> received =
         in->blocks.empty() ? std::vector<std::byte>{} : std::move(in->blocks.front());
@@ -730,6 +802,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
   if (h.final) {
     std::vector<std::vector<std::byte>> blocks = std::move(in->blocks);
     incomplete_bytes_ -= in->size;
+    forget_incoming(*in);
     incoming_.erase(it);
     {
       std::lock_guard lock(send_mutex_);
@@ -746,9 +819,10 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     release_deferred_acks();
     return true;
   }
+  update_reservation(*in);
   // Keep the sender kGrantAheadFrames beyond what has arrived (docs/protocol.md 5.3: a receiver
   // may send MORE at any time), so a large message streams at the link's speed rather than
-  // waiting for an ack every 64 KiB; the receive budget still holds acks back.
+  // waiting for an ack every 64 KiB; the receive budgets still hold acks back.
   const std::uint32_t wanted = in->next_frame + kGrantAheadFrames;
   const std::uint32_t promised = in->granted + in->owed_acks * kAckEvery;
   if (wanted >= promised + kAckEvery) {
@@ -758,21 +832,61 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
   return true;
 }
 
-// Sends the acks that the receive budget allows, oldest message first. The oldest incomplete
-// message always gets its acks, so two large messages can never wait on each other.
+// What a message may still make the receiver hold: what arrived plus the credit not yet used.
+void Connection::update_reservation(Incoming& in) {
+  const std::size_t now_reserved =
+      in.refused ? 0 : in.size + std::size_t{in.granted - in.next_frame} * kMaxFramePayload;
+  if (now_reserved > in.reserved) {
+    limits_->receive.add(now_reserved - in.reserved);
+  } else {
+    limits_->receive.remove(in.reserved - now_reserved);
+  }
+  in.reserved = now_reserved;
+}
+
+// The message completed, was refused or is dropped with the connection.
+void Connection::forget_incoming(Incoming& in) {
+  limits_->receive.remove(std::exchange(in.reserved, 0));
+  limits_->receive.release(id_, in.msg_no);
+}
+
+// Sends the acks that the receive budgets allow, oldest message first. The oldest incomplete
+// message of a connection proceeds within the budget of all connections, and one message at a
+// time (the privileged one) beyond it, so messages can never wait on each other for ever.
 void Connection::release_deferred_acks() {
+  detail::ReceiveBudget& budget = limits_->receive;
   bool oldest = true;
+  bool blocked = false;
   for (const auto& entry : incoming_) {
     Incoming& in = *entry;
     if (in.refused) continue;
-    const bool privileged = oldest;
+    const bool first = oldest;
     oldest = false;
-    while (in.owed_acks > 0 &&
-           (privileged || incomplete_bytes_.load() <= options_.receive_budget)) {
+    while (in.owed_acks > 0) {
+      bool allowed = budget.is_privileged(id_, in.msg_no);
+      if (!allowed && (first || incomplete_bytes_.load() <= options_.receive_budget)) {
+        allowed = budget.fits(kAckBytes) || (first && budget.claim(id_, in.msg_no));
+        blocked = blocked || !allowed;
+      }
+      if (!allowed) break;
       --in.owed_acks;
       in.granted += kAckEvery;
+      in.last_progress = std::chrono::steady_clock::now();
+      update_reservation(in);
       send_data_ack(in.msg_no, AckCode::more);
     }
+  }
+  if (blocked && !waiting_for_budget_) {
+    // Woken when another connection's message frees room (and by on_timer in any case).
+    waiting_for_budget_ = true;
+    budget.wait([weak = weak_from_this()] {
+      auto self = weak.lock();
+      if (!self) return;
+      asio::post(self->socket_.get_executor(), [self] {
+        self->waiting_for_budget_ = false;
+        if (self->state_.load() == State::open) self->release_deferred_acks();
+      });
+    });
   }
 }
 
@@ -809,6 +923,7 @@ bool Connection::handle_data_ack(std::span<const std::byte> payload) {
     if (it == messages_.end()) return true;  // already fully written
     if (code == static_cast<std::uint32_t>(AckCode::more)) {
       it->credit += kAckEvery;
+      it->starved_since.reset();
       schedule_write_locked();
       return true;
     }
@@ -818,15 +933,19 @@ bool Connection::handle_data_ack(std::span<const std::byte> payload) {
     queued_bytes_ -= std::min(queued_bytes_, it->payload.size() - it->offset);
     refused_handler = std::move(it->on_sent);
     it->aborted = true;
+    it->starved_since.reset();
     schedule_write_locked();
   }
   if (refused) {
-    log_->warn("{} refused message #{} (too large for its max_message_size)", describe(), msg_no);
+    // NO_MORE: larger than the peer's max_message_size, or beyond its receive budget.
+    log_->warn("{} refused message #{} (too large for its max_message_size, or its receive "
+               "budget is spent)", describe(), msg_no);
     if (refused_handler) {
       refused_handler(std::make_exception_ptr(
           Error(ErrorKind::overloaded,
-                fmt::format("{} refused message #{}: larger than its max_message_size", describe(),
-                            msg_no))));
+                fmt::format("{} refused message #{}: larger than its max_message_size, or its "
+                            "receive budget is spent (retry later)",
+                            describe(), msg_no))));
     }
   }
   return true;
@@ -868,10 +987,12 @@ void Connection::on_timer() {
                          silent.count()));
         return;
       }
+      if (!check_progress(now)) return;
       // A reassembly buffer unused for a whole heartbeat interval goes back to the allocator.
       if (!spare_used_) spare_ = {};
       spare_used_ = false;
       send_control(FrameCode::heartbeat, {});
+      release_deferred_acks();  // in case a wake-up from the receive budget was missed
       break;
     }
   }
@@ -888,13 +1009,61 @@ void Connection::close(const std::string& reason) {
   });
 }
 
-void Connection::finish_close() {
-  fail(ErrorKind::refused, fmt::format("connection from {} denied", remote_address_));
+// False (and the connection closed) if a message in flight made no progress for
+// message_progress_timeout: a frame started and not finished, an incoming message with credit
+// and no frame, an outgoing one without credit, or a write the peer does not drain.
+bool Connection::check_progress(std::chrono::steady_clock::time_point now) {
+  const auto limit = options_.message_progress_timeout;
+  std::string stalled;
+  if (partial_frame_since_ && now - *partial_frame_since_ >= limit) {
+    stalled = fmt::format("a frame from {} has been incomplete for {} ms", describe(),
+                          ms(now - *partial_frame_since_));
+  }
+  for (const auto& in : incoming_) {
+    if (!stalled.empty()) break;
+    if (!in->refused && in->granted > in->next_frame && now - in->last_progress >= limit) {
+      stalled = fmt::format(
+          "message #{} from {} has received no frame for {} ms although {} more were granted",
+          in->msg_no, describe(), ms(now - in->last_progress), in->granted - in->next_frame);
+    }
+  }
+  if (stalled.empty()) {
+    std::lock_guard lock(send_mutex_);
+    for (const auto& m : messages_) {
+      if (m.starved_since && now - *m.starved_since >= limit) {
+        stalled = fmt::format(
+            "message #{} to {} has waited {} ms for flow-control credit (DATA_ACK) after frame #{}",
+            m.msg_no, describe(), ms(now - *m.starved_since), m.next_frame - 1);
+        break;
+      }
+    }
+    if (stalled.empty() && write_started_ && now - *write_started_ >= limit) {
+      stalled = fmt::format("a write to {} has not completed for {} ms: the peer does not read",
+                            describe(), ms(now - *write_started_));
+    }
+  }
+  if (stalled.empty()) return true;
+  fail(ErrorKind::disconnected,
+       fmt::format("{} (message_progress_timeout {} ms)", stalled, limit.count()));
+  return false;
 }
 
-void Connection::fail(ErrorKind kind, const std::string& reason) {
+void Connection::log_denial(const std::string& who, const std::string& reason) {
+  // A denied client may retry without end: at most one line a second per address.
+  if (auto held = limits_->denials.admit(remote_ip_)) {
+    log_->warn("denied {}: {}{}", who, reason, held_back(*held));
+  }
+}
+
+void Connection::finish_close() {
+  fail(ErrorKind::refused, fmt::format("connection from {} denied", remote_address_), true);
+}
+
+void Connection::fail(ErrorKind kind, const std::string& reason, bool quiet) {
   if (state_.exchange(State::closed) == State::closed) return;
-  if (kind == ErrorKind::bad_data) {
+  if (quiet) {
+    log_->debug("connection {} closed: {}", id_, reason);
+  } else if (kind == ErrorKind::bad_data) {
     log_->warn("closing connection {}: {}", id_, reason);
   } else {
     log_->info("connection {} closed: {}", id_, reason);
@@ -917,6 +1086,7 @@ void Connection::fail(ErrorKind kind, const std::string& reason) {
   std::error_code ignored;
   socket_.shutdown(asio::ip::tcp::socket::shutdown_both, ignored);
   socket_.close(ignored);
+  for (auto& in : incoming_) forget_incoming(*in);
   incoming_.clear();
   incomplete_bytes_ = 0;
   const Error error(ErrorKind::disconnected, reason);

@@ -2,18 +2,33 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <asio/connect.hpp>
 #include <asio/post.hpp>
 #include <asio/ssl/context.hpp>
+#include <cerrno>
 #include <future>
+#include <limits>
+
+#include "transport_limits.h"
 
 namespace icars::planet {
 
 struct ConnectionManager::Acceptor {
-  explicit Acceptor(asio::io_context& io) : socket(io) {}
+  explicit Acceptor(asio::io_context& io) : socket(io), retry(io) {}
   asio::ip::tcp::acceptor socket;
+  // Accepting again at once when descriptors or memory ran out would fail again at once (the
+  // pending connection stays queued): wait instead, 50 ms doubling to 1 s, until one succeeds.
+  asio::steady_timer retry;
+  std::chrono::milliseconds backoff{0};
+  std::uint64_t failures_unreported = 0;
+  std::chrono::steady_clock::time_point last_report;
+  // Not accepting while the connections hold all the descriptors they may (io thread only).
+  bool paused = false;
+  std::uint64_t pauses_unreported = 0;
+  std::chrono::steady_clock::time_point last_pause_report;
 };
 
 namespace {
@@ -54,6 +69,17 @@ std::shared_ptr<asio::ssl::context> make_context(const TlsOptions& o, bool serve
     context->set_verify_mode(asio::ssl::verify_peer);
   }
   return context;
+}
+
+constexpr std::chrono::milliseconds kAcceptBackoffFirst{50};
+constexpr std::chrono::milliseconds kAcceptBackoffMax{1000};
+
+// Failures of accept() that say the process (or the system) is out of a resource rather than
+// that one pending connection went bad.
+bool out_of_resources(const std::error_code& ec) {
+  if (ec.category() != asio::error::get_system_category()) return false;
+  const int e = ec.value();
+  return e == EMFILE || e == ENFILE || e == ENOBUFS || e == ENOMEM;
 }
 
 // CONNECT (PUN and token) and CONNECT_ACK must each fit one control frame.
@@ -184,15 +210,16 @@ void Peer::attempt() {
       });
 }
 
-void Peer::retry_later(const std::string& why) {
+void Peer::retry_later(const std::string& why, bool refused) {
   {
     std::lock_guard lock(mutex_);
     if (stopped_) return;
     last_error_ = why;
   }
+  if (refused) delay_ = std::max(delay_, policy_.refused_delay);
   manager_.log().debug("{}; retrying in {} ms", why, delay_.count());
   timer_.expires_after(delay_);
-  delay_ = std::min(policy_.max_delay, delay_ * 2);
+  delay_ = std::min(refused ? policy_.refused_max_delay : policy_.max_delay, delay_ * 2);
   timer_.async_wait([self = shared_from_this()](const std::error_code& ec) {
     if (!ec) self->attempt();
   });
@@ -212,7 +239,8 @@ void Peer::on_open(const std::shared_ptr<Connection>& c) {
                    shared_from_this(), {}});
 }
 
-void Peer::on_close(const std::shared_ptr<Connection>& c, const std::string& reason) {
+void Peer::on_close(const std::shared_ptr<Connection>& c, const Error& error) {
+  const std::string reason = error.what();
   bool was_open = false;
   {
     std::lock_guard lock(mutex_);
@@ -227,7 +255,8 @@ void Peer::on_close(const std::shared_ptr<Connection>& c, const std::string& rea
   if (was_open) {
     manager_.notify({LinkEventKind::disconnected, c, shared_from_this(), reason});
   }
-  retry_later(reason);
+  // A refusal during the handshake (CONNECT_ACK 0xFF, a failed TLS handshake) backs off longer.
+  retry_later(reason, error.kind() == ErrorKind::refused && !c->was_open());
 }
 
 // --- ConnectionManager ---------------------------------------------------------------------
@@ -235,9 +264,48 @@ void Peer::on_close(const std::shared_ptr<Connection>& c, const std::string& rea
 ConnectionManager::ConnectionManager(std::shared_ptr<asio::io_context> io, MessageHandler& upper,
                                      const ConnectionOptions& options,
                                      std::shared_ptr<spdlog::logger> logger)
-    : io_(std::move(io)), upper_(upper), options_(options), log_(std::move(logger)) {
+    : io_(std::move(io)),
+      upper_(upper),
+      options_(options),
+      log_(std::move(logger)),
+      limits_(std::make_shared<detail::TransportLimits>(
+          options.total_receive_budget, std::size_t{kAckEvery} * kMaxFramePayload)),
+      connection_cap_(options.max_connections) {
   options_.validate();
+  static std::once_flag raised;
+  std::call_once(raised, [] { raise_descriptor_limit(); });
 }
+
+std::size_t raise_descriptor_limit() {
+  rlimit limit{};
+  if (::getrlimit(RLIMIT_NOFILE, &limit) != 0) return 0;
+  if (limit.rlim_cur < limit.rlim_max) {
+    rlimit raised = limit;
+    raised.rlim_cur = limit.rlim_max;
+    if (::setrlimit(RLIMIT_NOFILE, &raised) == 0) limit = raised;
+  }
+  return limit.rlim_cur == RLIM_INFINITY ? std::numeric_limits<std::size_t>::max()
+                                         : static_cast<std::size_t>(limit.rlim_cur);
+}
+
+// Admitted connections must leave descriptors for everything else, or accept() fails for all.
+void ConnectionManager::limit_to_descriptors() {
+  rlimit limit{};
+  if (::getrlimit(RLIMIT_NOFILE, &limit) != 0 || limit.rlim_cur == RLIM_INFINITY) return;
+  const auto soft = static_cast<std::size_t>(limit.rlim_cur);
+  const std::size_t allowed = std::max<std::size_t>(
+      1, soft > 2 * kDescriptorReserve ? soft - kDescriptorReserve : soft / 2);
+  descriptor_cap_ = allowed;
+  const std::size_t cap = std::min(options_.max_connections, allowed);
+  if (connection_cap_.exchange(cap) != cap && cap < options_.max_connections) {
+    log_->warn("max_connections lowered from {} to {}: this process may open {} file descriptors "
+               "(RLIMIT_NOFILE) and keeps {} for other uses; raise the limit "
+               "(ulimit -n, LimitNOFILE=) to admit more",
+               options_.max_connections, cap, soft, soft - cap);
+  }
+}
+
+std::size_t ConnectionManager::receive_reserved() const { return limits_->receive.reserved(); }
 
 ConnectionManager::~ConnectionManager() = default;
 
@@ -294,16 +362,26 @@ Admission ConnectionManager::admit(const ConnectRequest& request) {
   Connection::Acceptor extra;
   std::shared_ptr<const AccessPolicy> access;
   std::size_t admitted = 0;
+  std::size_t from_address = 0;
   {
     std::lock_guard lock(mutex_);
     extra = accept_policy_;
     access = access_;
     for (const auto& [id, c] : connections_) {
-      if (c->role() == ConnectionRole::server && c->is_open()) ++admitted;
+      if (c->role() == ConnectionRole::server && c->is_open()) {
+        ++admitted;
+        if (c->remote_ip() == request.remote_ip) ++from_address;
+      }
     }
   }
   Admission admission;
-  if (admitted >= options_.max_connections) {
+  if (from_address >= options_.max_connections_per_address) {
+    admission.deny = fmt::format("too many connections from {}: {} open "
+                                 "(max_connections_per_address); retry later",
+                                 request.remote_ip, from_address);
+    return admission;
+  }
+  if (admitted >= connection_cap_.load()) {
     admission.deny = fmt::format("server full: {} connections open (max_connections); retry later",
                                  admitted);
     return admission;
@@ -360,6 +438,7 @@ std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_
   acceptor->socket.bind(endpoint);
   acceptor->socket.listen(asio::socket_base::max_listen_connections);
   const std::uint16_t bound = acceptor->socket.local_endpoint().port();
+  limit_to_descriptors();
   {
     std::lock_guard lock(mutex_);
     if (local_pun_.empty()) local_pun_ = fmt::format("{}:{}", address, bound);
@@ -370,22 +449,89 @@ std::uint16_t ConnectionManager::listen(const std::string& address, std::uint16_
   return bound;
 }
 
+void ConnectionManager::on_accept_failed(const std::shared_ptr<Acceptor>& acceptor,
+                                         const std::error_code& ec) {
+  ++accept_failures_;
+  ++acceptor->failures_unreported;
+  const auto now = std::chrono::steady_clock::now();
+  // One line a second at most, however fast accept fails.
+  if (now - acceptor->last_report >= std::chrono::seconds(1)) {
+    log_->warn("accept failed: {} ({} failure{} since the last report){}", ec.message(),
+               acceptor->failures_unreported, acceptor->failures_unreported == 1 ? "" : "s",
+               out_of_resources(ec) ? "; backing off while the process is out of descriptors or "
+                                      "memory (see ulimit -n)"
+                                    : "");
+    acceptor->failures_unreported = 0;
+    acceptor->last_report = now;
+  }
+  if (!out_of_resources(ec)) return;
+  acceptor->backoff = acceptor->backoff.count() == 0
+                          ? kAcceptBackoffFirst
+                          : std::min(kAcceptBackoffMax, acceptor->backoff * 2);
+  acceptor->retry.expires_after(acceptor->backoff);
+  acceptor->retry.async_wait([this, acceptor](const std::error_code& tec) {
+    if (tec || !acceptor->socket.is_open()) return;
+    accept_next(acceptor);
+  });
+}
+
 void ConnectionManager::accept_next(const std::shared_ptr<Acceptor>& acceptor) {
   acceptor->socket.async_accept([this, acceptor](const std::error_code& ec,
                                                  asio::ip::tcp::socket socket) {
     if (ec == asio::error::operation_aborted || !acceptor->socket.is_open()) return;
     if (ec) {
-      log_->warn("accept failed: {}", ec.message());
+      on_accept_failed(acceptor, ec);
+      if (out_of_resources(ec)) return;  // accept_next runs when the backoff timer fires
     } else {
+      acceptor->backoff = std::chrono::milliseconds(0);
       // In automatic mode a loopback client speaks plaintext and any other one TLS, as each
       // client decides from the host it connects to.
       std::error_code rec;
       const auto remote = socket.remote_endpoint(rec);
       const bool tls = wants_tls(rec ? std::string("unknown") : remote.address().to_string());
       adopt(std::move(socket), ConnectionRole::server, nullptr, tls);
+      if (pause_if_full(acceptor)) return;  // on_close resumes
     }
     accept_next(acceptor);
   });
+}
+
+// Connections (in any state, silent ones too) may hold only the descriptors the cap leaves:
+// accepting more would run the process out of descriptors for everything else.
+bool ConnectionManager::pause_if_full(const std::shared_ptr<Acceptor>& acceptor) {
+  std::size_t open = 0;
+  {
+    std::lock_guard lock(mutex_);
+    open = connections_.size();
+  }
+  if (open < descriptor_cap_.load()) return false;
+  acceptor->paused = true;
+  ++acceptor->pauses_unreported;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - acceptor->last_pause_report >= std::chrono::seconds(1)) {
+    log_->warn("not accepting connections: {} open, as many as this process's descriptor limit "
+               "allows (RLIMIT_NOFILE less a reserve of {}); resuming when one closes ({} "
+               "pause{} since the last report)",
+               open, kDescriptorReserve, acceptor->pauses_unreported,
+               acceptor->pauses_unreported == 1 ? "" : "s");
+    acceptor->pauses_unreported = 0;
+    acceptor->last_pause_report = now;
+  }
+  return true;
+}
+
+void ConnectionManager::resume_accepting() {
+  std::vector<std::shared_ptr<Acceptor>> acceptors;
+  {
+    std::lock_guard lock(mutex_);
+    if (connections_.size() >= descriptor_cap_.load()) return;
+    acceptors = acceptors_;
+  }
+  for (auto& a : acceptors) {
+    if (!a->paused || !a->socket.is_open()) continue;
+    a->paused = false;
+    accept_next(a);
+  }
 }
 
 std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socket,
@@ -416,7 +562,7 @@ std::shared_ptr<Connection> ConnectionManager::adopt(asio::ip::tcp::socket socke
   }
   auto connection = std::make_shared<Connection>(io_, std::move(socket), role, std::move(pun),
                                                  options_, *this, log_, std::move(policy),
-                                                 std::move(security));
+                                                 std::move(security), limits_);
   {
     std::lock_guard lock(mutex_);
     connections_.emplace(connection->id(), connection);
@@ -530,9 +676,10 @@ void ConnectionManager::on_close(const std::shared_ptr<Connection>& c, const Err
       owners_.erase(it);
     }
   }
+  resume_accepting();
   upper_.on_close(c, reason);
   if (owner) {
-    owner->on_close(c, reason.what());
+    owner->on_close(c, reason);
   } else if (!had_owner && c->was_open()) {
     notify({LinkEventKind::disconnected, c, nullptr, reason.what()});
   }
@@ -570,6 +717,7 @@ void ConnectionManager::shutdown_on_io() {
   for (auto& a : acceptors) {
     std::error_code ignored;
     a->socket.close(ignored);
+    a->retry.cancel();
   }
   for (auto& p : peers) p->stop();
   for (auto& c : connections) c->close("shutting down");

@@ -37,6 +37,10 @@ class context;
 
 namespace icars::planet {
 
+namespace detail {
+struct TransportLimits;
+}
+
 // Frames of one message the sender may have outstanding before a DATA_ACK(more); each ack
 // grants kAckEvery more. Fixed by protocol version 1 (docs/protocol.md, "Flow control").
 inline constexpr std::uint32_t kWindowFrames = 8;
@@ -61,6 +65,19 @@ struct ConnectionOptions {
   std::size_t max_incomplete_messages = 256;   // interleaved incoming messages per connection
                                                // (at least kMaxInterleavedMessages)
   std::size_t max_connections = 1024;  // server role: clients admitted at once; more are denied
+                                       // (also kept below the process's descriptor limit)
+  // Server role: clients admitted at once from one IP address (loopback addresses included), so
+  // that one host cannot take every slot; more are denied.
+  std::size_t max_connections_per_address = 64;
+  // A message in flight must make progress this often: an incomplete incoming message that was
+  // granted credit and receives no frame, a started frame that does not complete, a queued
+  // message waiting for flow-control credit (DATA_ACK), or a write the peer does not drain,
+  // for longer than this closes the connection.
+  std::chrono::milliseconds message_progress_timeout{30000};
+  // Bytes of incomplete incoming messages (received plus credit granted) across all connections
+  // of a ConnectionManager; beyond it new multi-frame messages are refused (NO_MORE) and acks are
+  // held back, except for one message at a time that may complete.
+  std::size_t total_receive_budget = 256u << 20;
 
   void validate() const;  // throws std::invalid_argument naming the bad option
 };
@@ -73,6 +90,7 @@ struct ConnectRequest {
   std::string token;             // empty: none sent
   std::string certificate_name;  // common name of its verified TLS client certificate, if any
   std::string remote_address;
+  std::string remote_ip;  // remote_address without the port
 };
 
 // A server's decision on a CONNECT.
@@ -145,7 +163,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
              ConnectionRole role, std::string local_pun,
              const ConnectionOptions& options, MessageHandler& handler,
              std::shared_ptr<spdlog::logger> logger, Acceptor acceptor = {},
-             ConnectionSecurity security = {});
+             ConnectionSecurity security = {},
+             std::shared_ptr<detail::TransportLimits> limits = {});  // null: its own
   ~Connection() override;
   Connection(const Connection&) = delete;
   Connection& operator=(const Connection&) = delete;
@@ -176,6 +195,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   // Server role: the principal the client authenticated as (null without an AccessPolicy).
   std::shared_ptr<const Principal> principal() const;
   const std::string& remote_address() const { return remote_address_; }
+  const std::string& remote_ip() const { return remote_ip_; }  // without the port
   std::size_t queued_bytes() const;  // bytes accepted by send() and not yet written
   ConnectionStats stats() const;
   std::size_t incomplete_bytes() const { return incomplete_bytes_.load(); }
@@ -198,6 +218,11 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool handle_data(const FrameHeader& h, std::span<const std::byte> payload);
   bool handle_data_ack(std::span<const std::byte> payload);
   void release_deferred_acks();
+  bool refuse_incoming(const FrameHeader& h, Incoming& in, const std::string& reason);
+  void update_reservation(Incoming& in);
+  void forget_incoming(Incoming& in);
+  bool check_progress(std::chrono::steady_clock::time_point now);
+  void log_denial(const std::string& who, const std::string& reason);
   void send_data_ack(std::uint32_t msg_no, AckCode code);
   void send_control(FrameCode code, std::vector<std::byte> payload, std::uint32_t msg_no = 0);
   void schedule_write_locked();
@@ -206,7 +231,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool try_direct_send_locked(Outgoing& msg);
   void arm_timer();
   void on_timer();
-  void fail(ErrorKind kind, const std::string& reason);
+  void fail(ErrorKind kind, const std::string& reason, bool quiet = false);  // quiet: debug log
   void finish_close();
 
   static std::atomic<std::uint64_t> next_id_;
@@ -224,6 +249,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::unique_ptr<Tls> tls_;  // null: plaintext
   std::uint64_t id_;
   std::string remote_address_;
+  std::string remote_ip_;
+  std::shared_ptr<detail::TransportLimits> limits_;
   std::atomic<State> state_{State::handshaking};
   std::chrono::steady_clock::time_point last_received_;
   std::chrono::steady_clock::time_point opened_at_;
@@ -241,6 +268,9 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool spare_used_ = false;
   std::vector<std::unique_ptr<Incoming>> incoming_;  // in arrival order; the first is the oldest
   std::atomic<std::size_t> incomplete_bytes_{0};
+  // Since when the bytes after the last whole frame have waited for the rest of their frame.
+  std::optional<std::chrono::steady_clock::time_point> partial_frame_since_;
+  bool waiting_for_budget_ = false;  // registered with the receive budget for a wake-up
 
   // Send side (guarded by send_mutex_).
   mutable std::mutex send_mutex_;
@@ -265,6 +295,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::vector<Outgoing> batch_done_;  // messages whose last frame is in the batch
   std::size_t batch_payload_bytes_ = 0;
   std::size_t batch_frames_ = 0;
+  std::optional<std::chrono::steady_clock::time_point> write_started_;  // guarded by send_mutex_
 };
 
 }  // namespace icars::planet

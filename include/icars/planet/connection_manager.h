@@ -2,8 +2,10 @@
 //
 // The server role accepts TCP connections, completes the TLS handshake where the listener is
 // secured and the CONNECT / CONNECT_ACK handshake (admitting a client only within
-// `max_connections`, when its token or certificate names a principal of the AccessPolicy, and
-// when the optional acceptor agrees) and tracks live connections. The client
+// `max_connections` and `max_connections_per_address`, when its token or certificate names a
+// principal of the AccessPolicy, and when the optional acceptor agrees) and tracks live
+// connections; when descriptors run out it backs off instead of failing accept() in a loop. The
+// client
 // role is a `Peer`: a link to one server that connects in the background and, whenever the
 // link drops, reconnects by itself with exponential backoff until stopped. Listeners hear of
 // every connection, disconnection and reconnection. Either side may invoke objects on the other
@@ -13,10 +15,12 @@
 #include <asio/io_context.hpp>
 #include <asio/ip/tcp.hpp>
 #include <asio/steady_timer.hpp>
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -32,7 +36,22 @@ struct ReconnectPolicy {
   std::chrono::milliseconds initial_delay{10};   // first retry after a drop or failed attempt
   std::chrono::milliseconds max_delay{2000};     // backoff doubles up to this
   std::chrono::milliseconds connect_timeout{3000};  // per TCP connect attempt
+  // After the server refused the link (CONNECT_ACK 0xFF: not authenticated, not authorized,
+  // full; or a failed TLS handshake) the next retry waits at least refused_delay, doubling up to
+  // refused_max_delay: asking again at once rarely changes the answer.
+  std::chrono::milliseconds refused_delay{1000};
+  std::chrono::milliseconds refused_max_delay{60000};
 };
+
+// Descriptors a server keeps free of connections (for files, pipes, listening sockets, the
+// process's other libraries): max_connections is lowered to the process's RLIMIT_NOFILE soft
+// limit minus this (or to half the limit, if that is smaller), and the listeners stop accepting
+// while that many connections (of any state) are open.
+inline constexpr std::size_t kDescriptorReserve = 64;
+
+// Raises the soft RLIMIT_NOFILE to the hard limit and returns the soft limit now in force.
+// Every ConnectionManager calls it once per process.
+std::size_t raise_descriptor_limit();
 
 enum class LinkEventKind : std::uint8_t { connected, disconnected, reconnected };
 
@@ -70,9 +89,9 @@ class Peer final : public Link, public std::enable_shared_from_this<Peer> {
  private:
   friend class ConnectionManager;
   void attempt();
-  void retry_later(const std::string& why);
+  void retry_later(const std::string& why, bool refused = false);
   void on_open(const std::shared_ptr<Connection>& c);
-  void on_close(const std::shared_ptr<Connection>& c, const std::string& reason);
+  void on_close(const std::shared_ptr<Connection>& c, const Error& reason);
 
   void stop_on_io();
 
@@ -130,6 +149,14 @@ class ConnectionManager final : public MessageHandler {
 
   // Server-side connections that completed the handshake, and client links that are up.
   std::vector<std::shared_ptr<Connection>> connections() const;
+  // Server role: clients admitted at once: max_connections, lowered (at listen) to what the
+  // descriptor limit allows.
+  std::size_t connection_cap() const { return connection_cap_.load(); }
+  // Accepts that failed (descriptors or memory exhausted, ...) since the manager was made.
+  std::uint64_t accept_failures() const { return accept_failures_.load(); }
+  // Bytes reserved for incomplete incoming messages across all connections (received, plus
+  // credit granted), bounded by total_receive_budget (plus the one message allowed past it).
+  std::size_t receive_reserved() const;
   const ConnectionOptions& options() const { return options_; }
   asio::io_context& io() { return *io_; }
   const std::shared_ptr<asio::io_context>& shared_io() const { return io_; }
@@ -152,6 +179,10 @@ class ConnectionManager final : public MessageHandler {
   friend class Peer;
   struct Acceptor;
   void accept_next(const std::shared_ptr<Acceptor>& acceptor);
+  void on_accept_failed(const std::shared_ptr<Acceptor>& acceptor, const std::error_code& ec);
+  bool pause_if_full(const std::shared_ptr<Acceptor>& acceptor);
+  void resume_accepting();
+  void limit_to_descriptors();
   std::shared_ptr<Connection> adopt(asio::ip::tcp::socket socket, ConnectionRole role,
                                     const std::shared_ptr<Peer>& owner, bool tls);
   Admission admit(const ConnectRequest& request);
@@ -164,6 +195,12 @@ class ConnectionManager final : public MessageHandler {
   MessageHandler& upper_;
   ConnectionOptions options_;
   std::shared_ptr<spdlog::logger> log_;
+  std::shared_ptr<detail::TransportLimits> limits_;  // shared with every connection
+  std::atomic<std::size_t> connection_cap_;
+  // Connections of any state (and role) the descriptor limit leaves room for; beyond it the
+  // listeners pause until one closes.
+  std::atomic<std::size_t> descriptor_cap_{std::numeric_limits<std::size_t>::max()};
+  std::atomic<std::uint64_t> accept_failures_{0};
 
   mutable std::mutex mutex_;
   std::string local_pun_;

@@ -21,7 +21,8 @@ inline constexpr std::size_t kMaxPooledBytes = 1u << 30;
 std::vector<std::byte> take_buffer(std::size_t capacity);
 // Keeps `buffer`'s memory for a later take_buffer (when it is large enough and there is room).
 void give_buffer(std::vector<std::byte>&& buffer);
-// Releases the pooled buffers unused for `idle` or longer.
+// Releases the pooled buffers unused for `idle` or longer and, when it released any, returns the
+// allocator's free memory to the system (glibc: malloc_trim).
 void trim_buffers(std::chrono::steady_clock::duration idle);
 // Bytes held by the pool now (for tests and statistics).
 std::size_t pooled_bytes();
