@@ -90,11 +90,12 @@ class DeviceManagerState : public ::testing::Test {
   void TearDown() override { fs::remove_all(dir_); }
 
   // The manager with its stderr in `log`; its stdout read by the test.
-  std::unique_ptr<planet_test::ChildProcess> start_manager(const fs::path& state, const fs::path& log) {
+  std::unique_ptr<planet_test::ChildProcess> start_manager(const fs::path& state,
+                                                           const fs::path& log) {
     return std::make_unique<planet_test::ChildProcess>(std::vector<std::string>{
-        "/bin/sh", "-c", "log=$1; shift; exec \"$@\" 2>\"$log\"", "sh", log.string(), kDeviceManager,
-        "--house", kHouse, "--server", "127.0.0.1:" + std::to_string(port_), "--speedup", "60",
-        "--epoch", std::to_string(epoch_ms_), "--state", state.string()});
+        "/bin/sh", "-c", "log=$1; shift; exec \"$@\" 2>\"$log\"", "sh", log.string(),
+        kDeviceManager, "--house", kHouse, "--server", "127.0.0.1:" + std::to_string(port_),
+        "--speedup", "60", "--epoch", std::to_string(epoch_ms_), "--state", state.string()});
   }
   // Reads stdout until a line starts with `prefix`; returns it ("" on timeout or exit).
   static std::string line_starting(planet_test::ChildProcess& process, const std::string& prefix) {
@@ -173,7 +174,8 @@ TEST_F(DeviceManagerState, ATruncatedStateFileIsWarnedAboutAndTheHouseStartsFres
   EXPECT_EQ(line_starting(*manager, "STATE "), "STATE rejected " + state_.string());
   ASSERT_NE(line_starting(*manager, "REGISTERED "), "") << read(dir_ / "manager.log");
   const auto log = read(dir_ / "manager.log");
-  EXPECT_NE(log.find("state file " + state_.string() + ": not valid JSON"), std::string::npos) << log;
+  EXPECT_NE(log.find("state file " + state_.string() + ": not valid JSON"), std::string::npos)
+      << log;
   EXPECT_NE(log.find("kept as " + state_.string() + ".rejected"), std::string::npos) << log;
   const auto tv = capability<home::TVControlPrx>("tv", "tv_control").state();
   EXPECT_FALSE(tv.on);

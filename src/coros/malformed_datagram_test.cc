@@ -37,7 +37,8 @@ TEST(BadDatagramReporter, ReportsTheFirstAtOnceAndTheRestOncePerPeriodWithTheirC
   EXPECT_EQ(first->from, "10.0.0.1:5000");
   EXPECT_EQ(first->error, "bad magic");
   for (int i = 0; i < 998; ++i) {
-    EXPECT_FALSE(reporter.add(endpoint("10.0.0.1", 5001), Reason::malformed, "bad magic", t0 + 10ms));
+    EXPECT_FALSE(
+        reporter.add(endpoint("10.0.0.1", 5001), Reason::malformed, "bad magic", t0 + 10ms));
   }
   EXPECT_FALSE(reporter.add(endpoint("10.0.0.1", 5002), Reason::refused, "no handler", t0 + 20ms));
   EXPECT_TRUE(reporter.due(t0 + 999ms).empty());

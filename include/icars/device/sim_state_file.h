@@ -105,7 +105,7 @@ class SimStateFile {
   // Something changed that nobody waits for: written within min_interval.
   void changed();
 
-  std::uint64_t writes() const;  // completed writes, for tests
+  std::uint64_t writes() const;    // completed writes, for tests
   std::string last_error() const;  // the last write's error, or ""
 
  private:
@@ -129,9 +129,9 @@ class SimStateFile {
   std::map<std::string, SimTVState> tvs_;
   std::map<std::string, SimLightState> lights_;
   std::map<std::string, SimSpeakerState> speakers_;
-  std::uint64_t version_ = 0;   // bumped by every change
-  std::uint64_t urgent_ = 0;    // the newest version a committer waits for
-  std::uint64_t written_ = 0;   // the newest version on disk (or failed to get there)
+  std::uint64_t version_ = 0;  // bumped by every change
+  std::uint64_t urgent_ = 0;   // the newest version a committer waits for
+  std::uint64_t written_ = 0;  // the newest version on disk (or failed to get there)
   std::uint64_t writes_ = 0;
   std::string error_;
   bool started_ = false;

@@ -33,7 +33,8 @@ struct Invalid : std::runtime_error {
 };
 
 [[noreturn]] void system_failure(const std::string& what, const std::filesystem::path& path) {
-  throw std::system_error(errno, std::generic_category(), fmt::format("{} {}", what, path.string()));
+  throw std::system_error(errno, std::generic_category(),
+                          fmt::format("{} {}", what, path.string()));
 }
 
 // Writes `text` to `path` so that a crash at any instant leaves the old file or the new one:
@@ -113,7 +114,9 @@ const json& object_member(const json& object, const char* key, const std::string
   return *it;
 }
 
-bool is_kept(const std::string& type) { return type == "TV" || type == "Light" || type == "Speaker"; }
+bool is_kept(const std::string& type) {
+  return type == "TV" || type == "Light" || type == "Speaker";
+}
 
 }  // namespace
 
@@ -174,7 +177,8 @@ void SimStateFile::load() {
     if (!doc.is_object()) throw Invalid("not a JSON object, expected an icars-sim-state object");
     if (doc.value("format", std::string()) != kFormat) {
       throw Invalid(fmt::format("\"format\" is {}, expected \"{}\"",
-                                doc.contains("format") ? doc["format"].dump() : "missing", kFormat));
+                                doc.contains("format") ? doc["format"].dump() : "missing",
+                                kFormat));
     }
     if (const auto v = field<std::int64_t>(doc, "version", "the file"); v != kVersion) {
       throw Invalid(fmt::format("version {}, this program reads version {}", v, kVersion));
@@ -208,16 +212,19 @@ void SimStateFile::load() {
     for (const auto& id : devices_) {
       const std::string where = fmt::format("device \"{}\"", id);
       const json& d = devices.at(id);
-      if (!d.is_object()) throw Invalid(fmt::format("{} is {}, expected an object", where, d.dump()));
+      if (!d.is_object())
+        throw Invalid(fmt::format("{} is {}, expected an object", where, d.dump()));
       const auto& type = world_.house().device(id)->type;
       if (const auto t = field<std::string>(d, "type", where); t != type) {
-        throw Invalid(fmt::format("{} has type \"{}\" in the file, \"{}\" in the house", where, t, type));
+        throw Invalid(
+            fmt::format("{} has type \"{}\" in the file, \"{}\" in the house", where, t, type));
       }
       if (type == "TV") {
         tvs[id] = SimTVState{field<bool>(d, "on", where), ranged(d, "channel", where, 1, 99),
                              ranged(d, "volume", where, 0, 100)};
       } else if (type == "Light") {
-        lights[id] = SimLightState{field<bool>(d, "on", where), ranged(d, "intensity", where, 0, 100)};
+        lights[id] =
+            SimLightState{field<bool>(d, "on", where), ranged(d, "intensity", where, 0, 100)};
       } else if (type == "Speaker") {
         speakers[id] = SimSpeakerState{field<std::string>(d, "playing", where),
                                        ranged(d, "volume", where, 0, 100),
@@ -233,7 +240,8 @@ void SimStateFile::load() {
       if (world_.house().robot(id) == nullptr) {
         throw Invalid(fmt::format("{} is not in house \"{}\"", where, world_.house().name));
       }
-      if (!r.is_object()) throw Invalid(fmt::format("{} is {}, expected an object", where, r.dump()));
+      if (!r.is_object())
+        throw Invalid(fmt::format("{} is {}, expected an object", where, r.dump()));
       sim::RobotState state;
       state.robot = id;
       state.at = at;
@@ -241,8 +249,8 @@ void SimStateFile::load() {
       if (r.contains("path")) {
         const json& path = r["path"];
         if (!path.is_array() || path.size() < 2) {
-          throw Invalid(fmt::format("{}: \"path\" is {}, expected at least two [x, y] points", where,
-                                    path.dump()));
+          throw Invalid(fmt::format("{}: \"path\" is {}, expected at least two [x, y] points",
+                                    where, path.dump()));
         }
         for (const auto& p : path) {
           if (!p.is_array() || p.size() != 2 || !p[0].is_number() || !p[1].is_number()) {
@@ -260,7 +268,8 @@ void SimStateFile::load() {
       saved.emplace(id, std::move(state));
     }
     for (const auto& spec : world_.house().robots) {
-      if (!saved.contains(spec.id)) throw Invalid(fmt::format("no entry for robot \"{}\"", spec.id));
+      if (!saved.contains(spec.id))
+        throw Invalid(fmt::format("no entry for robot \"{}\"", spec.id));
     }
     tvs_ = std::move(tvs);
     lights_ = std::move(lights);
@@ -276,12 +285,14 @@ void SimStateFile::load() {
     const auto aside = std::filesystem::path(path_.string() + ".rejected");
     std::filesystem::rename(path_, aside, ec);
     if (ec) {
-      throw std::runtime_error(fmt::format("state file {}: {}, and it cannot be moved aside to {}: {}",
-                                           path_.string(), rejection_, aside.string(), ec.message()));
+      throw std::runtime_error(
+          fmt::format("state file {}: {}, and it cannot be moved aside to {}: {}", path_.string(),
+                      rejection_, aside.string(), ec.message()));
     }
-    log_->warn("state file {}: {}; ignoring it, the devices start as the house file says (the "
-               "file is kept as {})",
-               path_.string(), rejection_, aside.string());
+    log_->warn(
+        "state file {}: {}; ignoring it, the devices start as the house file says (the "
+        "file is kept as {})",
+        path_.string(), rejection_, aside.string());
   }
 }
 
@@ -295,14 +306,16 @@ SimTVState SimStateFile::tv(const std::string& id) const {
 SimLightState SimStateFile::light(const std::string& id) const {
   std::lock_guard lock(mutex_);
   const auto it = lights_.find(id);
-  if (it == lights_.end()) throw std::invalid_argument("state file: no hosted light \"" + id + "\"");
+  if (it == lights_.end())
+    throw std::invalid_argument("state file: no hosted light \"" + id + "\"");
   return it->second;
 }
 
 SimSpeakerState SimStateFile::speaker(const std::string& id) const {
   std::lock_guard lock(mutex_);
   const auto it = speakers_.find(id);
-  if (it == speakers_.end()) throw std::invalid_argument("state file: no hosted speaker \"" + id + "\"");
+  if (it == speakers_.end())
+    throw std::invalid_argument("state file: no hosted speaker \"" + id + "\"");
   return it->second;
 }
 
@@ -430,7 +443,7 @@ void SimStateFile::write_loop() {
   std::unique_lock lock(mutex_);
   while (true) {
     wake_.wait(lock, [&] { return stopping_ || (started_ && version_ > written_); });
-    if (!started_) return;  // stopped before start(): nothing was ever written
+    if (!started_) return;             // stopped before start(): nothing was ever written
     if (version_ == written_) return;  // stopping, nothing left
     if (urgent_ <= written_ && !stopping_) {
       // Only changes nobody waits for: at most one write per min_interval.
