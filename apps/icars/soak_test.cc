@@ -8,7 +8,7 @@
 //   - every restarted device manager registered its devices again;
 //   - every day the statechart entered Observation, RestMode and SleepMode;
 //   - no task ran on after the occupancy change that should end it, and no behavior outlived
-//     its task (stuck tasks, defined below from the trace);
+//     its task (stuck tasks: testing/house_processes.h, find_overdue_tasks);
 //   - the server's memory is flat: VmRSS sampled every simulated day at 12:00, the last day's
 //     within max(+10%, +4 MiB) of day 2's.
 //
@@ -28,29 +28,21 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <memory>
 #include <nlohmann/json.hpp>
-#include <optional>
 #include <random>
-#include <set>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include "child_process.h"
-#include "icars/sim/house.h"
-#include "icars/sim/time.h"
+#include "house_processes.h"
 
 namespace {
 
-namespace fs = std::filesystem;
+using namespace icars_test;
 namespace sim = icars::sim;
-using nlohmann::json;
-using sim::SimTime;
 using namespace std::chrono_literals;
 
 const std::string kIcars = ICARS_BINARY;
@@ -78,11 +70,7 @@ struct Settings {
 Settings settings_from_environment() {
   Settings s;
   s.seed = std::random_device{}();
-  const auto var = [](const char* name) -> std::optional<std::string> {
-    const char* v = std::getenv(name);
-    if (v == nullptr || *v == '\0') return std::nullopt;
-    return std::string(v);
-  };
+  const auto var = environment_variable;
   try {
     if (auto v = var("ICARS_SOAK_SEED")) s.seed = std::stoull(*v);
     if (auto v = var("ICARS_SOAK_DAYS")) s.days = std::stoi(*v);
@@ -97,69 +85,7 @@ Settings settings_from_environment() {
   return s;
 }
 
-// --- Processes -----------------------------------------------------------------------------------
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path);
-  return {std::istreambuf_iterator<char>(in), {}};
-}
-
-std::string tail(const std::string& text, std::size_t lines = 30) {
-  std::size_t at = text.size();
-  for (std::size_t n = 0; n <= lines && at != std::string::npos && at > 0; ++n) at = text.rfind('\n', at - 1);
-  return at == std::string::npos || at >= text.size() ? text : text.substr(at + 1);
-}
-
-// Whether a log holds a sanitizer report (leak, memory error, undefined behavior).
-bool sanitizer_report(const std::string& log) {
-  return log.find("ERROR: LeakSanitizer") != std::string::npos ||
-         log.find("ERROR: AddressSanitizer") != std::string::npos ||
-         log.find("runtime error:") != std::string::npos;
-}
-
-// A child process with its stderr in a log file and extra environment variables.
-class Program {
- public:
-  Program(fs::path log, const std::vector<std::string>& env, const std::vector<std::string>& argv)
-      : log_(std::move(log)) {
-    // `sh` and `env` replace themselves by the program (exec), so the pid is the program's.
-    std::vector<std::string> all = {"/bin/sh", "-c", "log=$1; shift; exec \"$@\" 2>\"$log\"", "sh", log_.string(),
-                                    "/usr/bin/env"};
-    all.insert(all.end(), env.begin(), env.end());
-    all.insert(all.end(), argv.begin(), argv.end());
-    process_ = std::make_unique<planet_test::ChildProcess>(all);
-  }
-
-  pid_t pid() const { return process_->pid(); }
-  const fs::path& log() const { return log_; }
-  std::string stderr_text() const { return read_file(log_); }
-  // Lines printed so far (waiting at most ~2 ms for more; read_line needs 2 ms to poll at all).
-  std::vector<std::string> lines() {
-    std::vector<std::string> out;
-    while (auto line = process_->read_line(2ms)) out.push_back(std::move(*line));
-    return out;
-  }
-  // True once the process has exited (a zombie, not yet reaped) or is gone.
-  bool exited() const {
-    std::ifstream stat("/proc/" + std::to_string(pid()) + "/stat");
-    std::string text;
-    if (!std::getline(stat, text)) return true;
-    const auto paren = text.rfind(')');
-    return paren == std::string::npos || paren + 2 >= text.size() || text[paren + 2] == 'Z';
-  }
-  void signal(int sig) const { process_->signal(sig); }
-  int wait() { return process_->wait(); }
-
- private:
-  fs::path log_;
-  std::unique_ptr<planet_test::ChildProcess> process_;  // killed (SIGKILL) and reaped on destruction
-};
-
-std::string describe_status(int status) {
-  if (WIFEXITED(status)) return fmt::format("exit status {}", WEXITSTATUS(status));
-  if (WIFSIGNALED(status)) return fmt::format("killed by signal {}", WTERMSIG(status));
-  return fmt::format("wait status {}", status);
-}
+// --- Memory --------------------------------------------------------------------------------------
 
 struct Memory {
   double rss_mib = 0, hwm_mib = 0;
@@ -173,62 +99,6 @@ Memory read_memory(pid_t pid) {
     if (line.starts_with("VmHWM:")) m.hwm_mib = kib();
   }
   return m;
-}
-
-// --- The house: device managers, and when the users change what the sensors see ---------------
-
-struct Manager {
-  std::string name;
-  std::vector<std::string> devices;
-  bool simulation = false;          // hosts the engines and the Simulation device (the clock)
-  std::set<std::string> furniture;  // watched by its occupancy sensors
-  std::size_t expected_devices = 0;
-
-  std::unique_ptr<Program> process;
-  int incarnation = 0;
-  bool registered = false;
-  std::chrono::steady_clock::time_point started_wall;
-  SimTime down_since{0};
-  int kills = 0, registrations = 0;
-  std::vector<double> reregistration_ms;            // wall time from restart to registration
-  std::vector<std::pair<SimTime, SimTime>> outages;  // killed .. registered again
-};
-
-// The moments of a day when a user sits or lies down on, or gets up from, furniture that a
-// sensor watches: the only inputs that move the paper policy's statechart.
-struct Moment {
-  std::string furniture;
-  SimTime time_of_day;
-};
-std::vector<Moment> occupancy_moments(const sim::House& house, const std::set<std::string>& sensed) {
-  std::vector<Moment> out;
-  for (const auto& user : house.users) {
-    const auto& entries = user.schedule;
-    for (std::size_t i = 0; i < entries.size(); ++i) {
-      const auto& e = entries[i];
-      if ((e.activity != sim::Activity::sit && e.activity != sim::Activity::lie) || !sensed.contains(e.target)) continue;
-      out.push_back({e.target, e.at});
-      for (std::size_t j = 1; j <= entries.size(); ++j) {  // the next movement ends it (maybe tomorrow)
-        const auto& next = entries[(i + j) % entries.size()];
-        if (next.activity == sim::Activity::say) continue;
-        out.push_back({e.target, next.at});
-        break;
-      }
-    }
-  }
-  return out;
-}
-
-// The first moment strictly after `t` (in any day), of the given furniture or of any.
-SimTime next_moment(const std::vector<Moment>& moments, SimTime t, const std::string& furniture = "") {
-  SimTime best = SimTime::max();
-  for (const auto& m : moments) {
-    if (!furniture.empty() && m.furniture != furniture) continue;
-    auto at = sim::kDay * (t / sim::kDay) + m.time_of_day;
-    if (at <= t) at += sim::kDay;
-    best = std::min(best, at);
-  }
-  return best;
 }
 
 // --- The kill schedule ---------------------------------------------------------------------------
@@ -271,17 +141,6 @@ std::vector<Action> plan(std::mt19937_64& rng, std::vector<Manager>& managers, c
   return actions;
 }
 
-// --- The trace ---------------------------------------------------------------------------------------
-
-std::string str(const json& j, const char* key) {
-  return j.contains(key) && j[key].is_string() ? j[key].get<std::string>() : "";
-}
-
-struct TaskRun {
-  std::string task;
-  SimTime started{0}, stopped = SimTime::max();  // max: still running at the end
-};
-
 }  // namespace
 
 TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
@@ -301,33 +160,12 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   // The paper house's devices over three managers: the robot's four; the living room's; the
   // bedroom's with the speech and vision engines and the Simulation device (the house's clock).
   const auto house = sim::load_house(kHouse);
-  std::vector<Manager> managers(3);
-  managers[0].name = "robot";
-  managers[1].name = "living";
-  managers[2].name = "bedroom";
-  managers[2].simulation = true;
-  std::set<std::string> sensed;
-  for (const auto& d : house.devices) {
-    auto& m = !d.carrier.empty() ? managers[0] : d.room == "living_room" ? managers[1] : managers[2];
-    m.devices.push_back(d.id);
-    if (d.params.contains("furniture")) {
-      m.furniture.insert(d.params.at("furniture"));
-      sensed.insert(d.params.at("furniture"));
-    }
-  }
-  for (auto& m : managers) m.expected_devices = m.devices.size() + (m.simulation ? 3 : 0);  // + 2 engines, Simulation
-  const auto moments = occupancy_moments(house, sensed);
+  auto managers = split_paper_house(house);
+  const auto moments = occupancy_moments(house, sensed_furniture(managers));
   ASSERT_FALSE(moments.empty());
-  SimTime jitter{0};
-  for (const auto& u : house.users) jitter = std::max(jitter, u.time_jitter);
-
-  // ASan keeps freed memory in a quarantine (256 MiB by default) before reusing it, so the RSS of
-  // a busy process climbs for hours before it levels off. A 16 MiB quarantine fills within the
-  // first simulated day, which keeps use-after-free detection and makes RSS comparable later on.
-  const char* inherited = std::getenv("ASAN_OPTIONS");
-  const std::string asan = std::string("ASAN_OPTIONS=") + (inherited != nullptr ? std::string(inherited) + ":" : "") +
-                           "detect_leaks=1:quarantine_size_mb=16";
-  const std::vector<std::string> env = {asan};
+  const SimTime jitter = schedule_jitter(house);
+  // A 16 MiB ASan quarantine makes RSS comparable from day 2 on (child_environment).
+  const auto env = child_environment();
 
   // --- The server: it stops by itself at 18:00 of the last day. ---
   const SimTime start = house.start_time;
@@ -338,37 +176,15 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
                   fmt::format("{}", s.speed), "--until", "18:00", "--days", std::to_string(s.days), "--quiet",
                   "--trace", trace_file.string()});
   std::vector<std::string> server_output;
-  std::string port;
-  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
-  ASSERT_TRUE(planet_test::wait_until([&] {
-    for (auto& line : server.lines()) {
-      if (line.starts_with(prefix)) port = line.substr(prefix.size(), line.find(';') - prefix.size());
-      server_output.push_back(std::move(line));
-    }
-    return !port.empty() || server.exited();
-  }, 60s)) << "the server did not start; its stderr:\n" << tail(server.stderr_text());
-  ASSERT_FALSE(port.empty()) << "the server exited; its stderr:\n" << tail(server.stderr_text());
+  const std::string port = start_mediator(server, server_output);
+  ASSERT_FALSE(port.empty()) << "the server did not start; its stderr:\n" << tail(server.stderr_text());
 
   // --- One simulated clock for all: every manager maps the wall clock to simulated time from the
   // same epoch, so a restarted manager resumes where the others are. ---
-  const auto wall_ms = [] {
-    return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
-        .count();
-  };
-  const std::int64_t epoch = wall_ms() + 3000;  // time for every manager to start and register
-  const auto sim_now = [&] {
-    return start + SimTime(static_cast<std::int64_t>(static_cast<double>(wall_ms() - epoch) * s.speed));
-  };
+  const SharedClock clock{start, SharedClock::wall_ms() + 3000, s.speed};  // time for every manager to register
+  const auto sim_now = [&] { return clock.now(); };
   const auto launch = [&](Manager& m) {
-    std::string devices;
-    for (const auto& d : m.devices) devices += (devices.empty() ? "" : ",") + d;
-    std::vector<std::string> argv = {kDeviceManager, "--house", kHouse, "--server", "127.0.0.1:" + port, "--devices",
-                                     devices, "--speedup", fmt::format("{}", s.speed), "--pun", m.name, "--epoch",
-                                     std::to_string(epoch)};
-    if (!m.simulation) argv.insert(argv.end(), {"--no-engines", "--no-simulator"});
-    m.process = std::make_unique<Program>(dir / fmt::format("{}-{}.stderr", m.name, ++m.incarnation), env, argv);
-    m.registered = false;
-    m.started_wall = std::chrono::steady_clock::now();
+    m.launch(dir, env, m.command(kDeviceManager, kHouse, "127.0.0.1:" + port, clock));
   };
   for (auto& m : managers) launch(m);
 
@@ -376,24 +192,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   std::vector<std::string> failures;
   const auto pump = [&] {
     for (auto& line : server.lines()) server_output.push_back(std::move(line));
-    for (auto& m : managers) {
-      if (!m.process) continue;
-      for (const auto& line : m.process->lines()) {
-        if (!line.starts_with("REGISTERED ")) continue;
-        const auto devices = std::stoul(line.substr(line.rfind(' ') + 1));
-        if (devices != m.expected_devices) {
-          failures.push_back(fmt::format("{} registered {} devices, expected {}", m.name, devices, m.expected_devices));
-        }
-        if (m.registered) continue;  // a later round: it reconnected by itself
-        m.registered = true;
-        ++m.registrations;
-        if (m.incarnation > 1) {
-          m.reregistration_ms.push_back(
-              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - m.started_wall).count());
-          m.outages.emplace_back(m.down_since, sim_now());
-        }
-      }
-    }
+    for (auto& m : managers) m.read_output(sim_now(), failures);
   };
   ASSERT_TRUE(planet_test::wait_until([&] {
     pump();
@@ -466,21 +265,11 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
   // --- What the server did, from its trace. ---
-  std::vector<json> trace;
-  {
-    std::ifstream in(trace_file);
-    for (std::string line; std::getline(in, line);) {
-      if (!line.empty()) trace.push_back(json::parse(line));
-    }
-  }
+  const auto trace = read_json_lines(trace_file);
   const auto day_of = [&](SimTime t) { return static_cast<int>((t - start) / sim::kDay) + 1; };  // 18:00 to 18:00
   std::map<int, std::map<std::string, int>> tasks_per_day;   // day -> task -> runs started
   std::map<int, std::map<std::string, int>> states_per_day;  // day -> state -> times entered
   std::map<int, int> behaviors_per_day, failed_per_day, heard_per_day, waypoints_per_day;
-  std::vector<TaskRun> runs;
-  std::map<std::string, std::size_t> open_run;        // task -> index in runs
-  std::map<std::string, std::vector<SimTime>> running;  // behavior path -> start times not yet ended
-  std::vector<std::string> stuck;
   for (const auto& r : trace) {
     const SimTime t(r.value("t", std::int64_t{0}));
     const auto kind = str(r, "kind");
@@ -488,52 +277,16 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
     if (kind == "state" && event == "enter") ++states_per_day[day_of(t)][str(r, "state")];
     if (kind == "speech") ++heard_per_day[day_of(t)];
     if (kind == "event" && event == "WaypointReached") ++waypoints_per_day[day_of(t)];
-    if (kind == "task" && event == "start") {
-      const auto task = str(r, "task");
-      ++tasks_per_day[day_of(t)][task];
-      open_run[task] = runs.size();
-      runs.push_back({task, t});
-    } else if (kind == "task" && event == "stop") {
-      const auto task = str(r, "task");
-      if (open_run.contains(task)) runs[open_run[task]].stopped = t;
-      open_run.erase(task);
-      // No behavior of the task runs on after it (a behavior's path starts with its task's root).
-      for (const auto& [path, starts] : running) {
-        if (!starts.empty() && path.starts_with(task + "/")) {
-          stuck.push_back(fmt::format("behavior {} (started {}) still running when task {} stopped at {}", path,
-                                      sim::format_time(starts.front()), task, sim::format_time(t)));
-        }
-      }
-    } else if (kind == "behavior") {
-      const auto path = str(r, "source");
-      if (event == "start") {
-        running[path].push_back(t);
-        ++behaviors_per_day[day_of(t)];
-      } else if ((event == "success" || event == "failure" || event == "halt") && !running[path].empty()) {
-        failed_per_day[day_of(t)] += event == "failure";
-        running[path].erase(running[path].begin());
-      }
-    }
+    if (kind == "task" && event == "start") ++tasks_per_day[day_of(t)][str(r, "task")];
+    if (kind == "behavior" && event == "start") ++behaviors_per_day[day_of(t)];
+    if (kind == "behavior" && event == "failure") ++failed_per_day[day_of(t)];
   }
-  for (const auto& [path, starts] : running) {
-    for (const auto& at : starts) stuck.push_back(fmt::format("behavior {} started {} never ended", path, sim::format_time(at)));
-  }
-  // A task of this policy ends at the latest when a sensor next sees the user sit, lie down or get
-  // up (RestMode and SleepMode on UserLeft, Observation on TimeToRest/Sleep, Standby on
-  // SituationChanged). One still running 45 simulated minutes after that moment (plus the
-  // schedule's jitter and the user's walk) is stuck. The moment that started a task lies within
-  // 15 minutes of its start (jitter, the walk, the mediator's clock following the house's by a
-  // poll), and the moments are at least 30 minutes apart. The run ends during Observation.
-  const SimTime slack = jitter + 45min;
-  for (const auto& run : runs) {
-    const auto limit = next_moment(moments, run.started + 15min) + slack;
-    if (run.stopped > limit && limit < end) {
-      stuck.push_back(fmt::format("task {} started {} still running at {} (the user's situation changed at {})", run.task,
-                                  sim::format_time(run.started),
-                                  run.stopped == SimTime::max() ? std::string("the end") : sim::format_time(run.stopped),
-                                  sim::format_time(limit - slack)));
-    }
-  }
+  // No behavior outlives its task, and no task runs on 45 simulated minutes (plus the schedule's
+  // jitter and the user's walk) after the moment that should end it. The run ends during
+  // Observation.
+  auto tasks = follow_tasks(trace);
+  find_overdue_tasks(tasks, [&](SimTime t) { return next_moment(moments, t); }, jitter + 45min, end);
+  const auto& stuck = tasks.stuck;
 
   // --- The figures. ---
   int kills = 0, registrations = 0;

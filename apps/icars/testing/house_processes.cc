@@ -1,0 +1,272 @@
+#include "house_processes.h"
+
+#include <fmt/format.h>
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+
+namespace icars_test {
+
+namespace sim = icars::sim;
+using namespace std::chrono_literals;
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+std::string tail(const std::string& text, std::size_t lines) {
+  std::size_t at = text.size();
+  for (std::size_t n = 0; n <= lines && at != std::string::npos && at > 0; ++n) at = text.rfind('\n', at - 1);
+  return at == std::string::npos || at >= text.size() ? text : text.substr(at + 1);
+}
+
+bool sanitizer_report(const std::string& log) {
+  return log.find("ERROR: LeakSanitizer") != std::string::npos ||
+         log.find("ERROR: AddressSanitizer") != std::string::npos ||
+         log.find("runtime error:") != std::string::npos;
+}
+
+std::string describe_status(int status) {
+  if (WIFEXITED(status)) return fmt::format("exit status {}", WEXITSTATUS(status));
+  if (WIFSIGNALED(status)) return fmt::format("killed by signal {}", WTERMSIG(status));
+  return fmt::format("wait status {}", status);
+}
+
+std::optional<std::string> environment_variable(const char* name) {
+  const char* v = std::getenv(name);
+  if (v == nullptr || *v == '\0') return std::nullopt;
+  return std::string(v);
+}
+
+std::vector<std::string> child_environment() {
+  const char* inherited = std::getenv("ASAN_OPTIONS");
+  return {std::string("ASAN_OPTIONS=") + (inherited != nullptr ? std::string(inherited) + ":" : "") +
+          "detect_leaks=1:quarantine_size_mb=16"};
+}
+
+// --- Program ---------------------------------------------------------------------------------------
+
+Program::Program(fs::path log, const std::vector<std::string>& env, const std::vector<std::string>& argv)
+    : log_(std::move(log)) {
+  // `bash` and `env` replace themselves by the program (exec), so the pid is the program's. bash
+  // first closes every descriptor above stderr (posix_spawn passes on those without O_CLOEXEC).
+  std::vector<std::string> all = {
+      "/bin/bash", "-c",
+      "log=$1; shift; for fd in /proc/self/fd/*; do fd=${fd##*/}; if [ \"$fd\" -gt 2 ]; then eval \"exec $fd>&-\"; "
+      "fi; done 2>/dev/null; exec \"$@\" 2>\"$log\"",
+      "bash", log_.string(), "/usr/bin/env"};
+  all.insert(all.end(), env.begin(), env.end());
+  all.insert(all.end(), argv.begin(), argv.end());
+  process_ = std::make_unique<planet_test::ChildProcess>(all);
+}
+
+std::vector<std::string> Program::lines() {
+  std::vector<std::string> out;
+  while (auto line = process_->read_line(2ms)) out.push_back(std::move(*line));
+  return out;
+}
+
+bool Program::exited() const {
+  std::ifstream stat("/proc/" + std::to_string(pid()) + "/stat");
+  std::string text;
+  if (!std::getline(stat, text)) return true;
+  const auto paren = text.rfind(')');
+  return paren == std::string::npos || paren + 2 >= text.size() || text[paren + 2] == 'Z';
+}
+
+std::string start_mediator(Program& server, std::vector<std::string>& output) {
+  std::string port;
+  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
+  planet_test::wait_until([&] {
+    for (auto& line : server.lines()) {
+      if (line.starts_with(prefix)) port = line.substr(prefix.size(), line.find(';') - prefix.size());
+      output.push_back(std::move(line));
+    }
+    return !port.empty() || server.exited();
+  }, 60s);
+  return port;
+}
+
+// --- The house on a shared clock -----------------------------------------------------------------
+
+std::int64_t SharedClock::wall_ms() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+SimTime SharedClock::now() const {
+  return start + SimTime(static_cast<std::int64_t>(static_cast<double>(wall_ms() - epoch_ms) * speed));
+}
+
+std::chrono::milliseconds SharedClock::wall(SimTime simulated) const {
+  return std::chrono::milliseconds(static_cast<std::int64_t>(static_cast<double>(simulated.count()) / speed));
+}
+
+std::vector<std::string> Manager::command(const std::string& device_manager, const std::string& house_file,
+                                          const std::string& server, const SharedClock& clock) const {
+  std::string list;
+  for (const auto& d : devices) list += (list.empty() ? "" : ",") + d;
+  std::vector<std::string> argv = {device_manager, "--house", house_file, "--server", server, "--devices", list,
+                                   "--speedup", fmt::format("{}", clock.speed), "--pun", name, "--epoch",
+                                   std::to_string(clock.epoch_ms)};
+  if (!simulation) argv.insert(argv.end(), {"--no-engines", "--no-simulator"});
+  return argv;
+}
+
+void Manager::launch(const fs::path& dir, const std::vector<std::string>& env, const std::vector<std::string>& argv) {
+  process = std::make_unique<Program>(dir / fmt::format("{}-{}.stderr", name, ++incarnation), env, argv);
+  registered = false;
+  started_wall = std::chrono::steady_clock::now();
+}
+
+void Manager::read_output(SimTime now, std::vector<std::string>& failures) {
+  if (!process) return;
+  for (const auto& line : process->lines()) {
+    if (line.starts_with("STATE ")) state_lines.push_back(line);
+    if (!line.starts_with("REGISTERED ")) continue;
+    ++rounds;
+    const auto count = std::stoul(line.substr(line.rfind(' ') + 1));
+    if (count != expected_devices) {
+      failures.push_back(fmt::format("{} registered {} devices, expected {}", name, count, expected_devices));
+    }
+    if (registered) continue;  // a later round: it reconnected by itself
+    registered = true;
+    ++registrations;
+    if (incarnation > 1) {
+      reregistration_ms.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started_wall).count());
+      outages.emplace_back(down_since, now);
+    }
+  }
+}
+
+std::vector<Manager> split_paper_house(const sim::House& house) {
+  std::vector<Manager> managers(3);
+  managers[0].name = "robot";
+  managers[1].name = "living";
+  managers[2].name = "bedroom";
+  managers[2].simulation = true;
+  for (const auto& d : house.devices) {
+    auto& m = !d.carrier.empty() ? managers[0] : d.room == "living_room" ? managers[1] : managers[2];
+    m.devices.push_back(d.id);
+    if (d.params.contains("furniture")) m.furniture.insert(d.params.at("furniture"));
+  }
+  for (auto& m : managers) m.expected_devices = m.devices.size() + (m.simulation ? 3 : 0);  // + 2 engines, Simulation
+  return managers;
+}
+
+std::set<std::string> sensed_furniture(const std::vector<Manager>& managers) {
+  std::set<std::string> out;
+  for (const auto& m : managers) out.insert(m.furniture.begin(), m.furniture.end());
+  return out;
+}
+
+std::vector<Moment> occupancy_moments(const sim::House& house, const std::set<std::string>& sensed) {
+  std::vector<Moment> out;
+  for (const auto& user : house.users) {
+    const auto& entries = user.schedule;
+    for (std::size_t i = 0; i < entries.size(); ++i) {
+      const auto& e = entries[i];
+      if ((e.activity != sim::Activity::sit && e.activity != sim::Activity::lie) || !sensed.contains(e.target)) continue;
+      out.push_back({e.target, e.at, true});
+      for (std::size_t j = 1; j <= entries.size(); ++j) {  // the next movement ends it (maybe tomorrow)
+        const auto& next = entries[(i + j) % entries.size()];
+        if (next.activity == sim::Activity::say) continue;
+        out.push_back({e.target, next.at, false});
+        break;
+      }
+    }
+  }
+  return out;
+}
+
+SimTime next_moment(const std::vector<Moment>& moments, SimTime t, const std::string& furniture) {
+  SimTime best = SimTime::max();
+  for (const auto& m : moments) {
+    if (!furniture.empty() && m.furniture != furniture) continue;
+    auto at = sim::kDay * (t / sim::kDay) + m.time_of_day;
+    if (at <= t) at += sim::kDay;
+    best = std::min(best, at);
+  }
+  return best;
+}
+
+SimTime schedule_jitter(const sim::House& house) {
+  SimTime jitter{0};
+  for (const auto& u : house.users) jitter = std::max(jitter, u.time_jitter);
+  return jitter;
+}
+
+// --- The trace -------------------------------------------------------------------------------------
+
+std::vector<json> read_json_lines(const fs::path& path) {
+  std::vector<json> out;
+  std::ifstream in(path);
+  for (std::string line; std::getline(in, line);) {
+    if (!line.empty()) out.push_back(json::parse(line));
+  }
+  return out;
+}
+
+std::string str(const json& j, const char* key) {
+  return j.contains(key) && j[key].is_string() ? j[key].get<std::string>() : "";
+}
+
+TaskTimeline follow_tasks(const std::vector<json>& trace) {
+  TaskTimeline out;
+  std::map<std::string, std::size_t> open_run;          // task -> index in runs
+  std::map<std::string, std::vector<SimTime>> running;  // behavior path -> start times not yet ended
+  for (const auto& r : trace) {
+    const SimTime t(r.value("t", std::int64_t{0}));
+    const auto kind = str(r, "kind");
+    const auto event = str(r, "event");
+    if (kind == "task" && event == "start") {
+      const auto task = str(r, "task");
+      open_run[task] = out.runs.size();
+      out.runs.push_back({task, t});
+    } else if (kind == "task" && event == "stop") {
+      const auto task = str(r, "task");
+      if (open_run.contains(task)) out.runs[open_run[task]].stopped = t;
+      open_run.erase(task);
+      for (const auto& [path, starts] : running) {
+        if (!starts.empty() && path.starts_with(task + "/")) {
+          out.stuck.push_back(fmt::format("behavior {} (started {}) still running when task {} stopped at {}", path,
+                                          sim::format_time(starts.front()), task, sim::format_time(t)));
+        }
+      }
+    } else if (kind == "behavior") {
+      const auto path = str(r, "source");
+      if (event == "start") {
+        running[path].push_back(t);
+      } else if ((event == "success" || event == "failure" || event == "halt") && !running[path].empty()) {
+        running[path].erase(running[path].begin());
+      }
+    }
+  }
+  for (const auto& [path, starts] : running) {
+    for (const auto& at : starts) {
+      out.stuck.push_back(fmt::format("behavior {} started {} never ended", path, sim::format_time(at)));
+    }
+  }
+  return out;
+}
+
+void find_overdue_tasks(TaskTimeline& timeline, const std::function<SimTime(SimTime)>& next_change, SimTime slack,
+                        SimTime end) {
+  for (const auto& run : timeline.runs) {
+    const auto limit = next_change(run.started + 15min) + slack;
+    if (run.stopped > limit && limit < end) {
+      timeline.stuck.push_back(fmt::format(
+          "task {} started {} still running at {} (the user's situation changed at {})", run.task,
+          sim::format_time(run.started),
+          run.stopped == SimTime::max() ? std::string("the end") : sim::format_time(run.stopped),
+          sim::format_time(limit - slack)));
+    }
+  }
+}
+
+}  // namespace icars_test
