@@ -30,6 +30,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <iostream>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -474,6 +475,7 @@ TEST(DescriptorLimit, AcceptBacksOffWhileDescriptorsAreExhaustedAndRecovers) {
     failures = server.connections().accept_failures() - failures_before;
     for (int fd : hogs) ::close(fd);
   }
+  std::cout << failures << " failed accepts in " << seconds << " s while descriptors were exhausted\n";
   // Backing off 50 ms doubling to 1 s: a handful of attempts, not a busy loop.
   EXPECT_LE(static_cast<double>(failures), seconds / 0.05 + 5)
       << failures << " failed accepts in " << seconds << " s: accept is not backing off";
@@ -696,6 +698,8 @@ TEST(ReceiveBudget, HoldsAcrossConnections) {
     std::this_thread::sleep_for(1ms);
   }
   peak = std::max(peak, server.incomplete_bytes());
+  std::cout << "8 half-sent messages pinned at most " << peak << " bytes (total_receive_budget "
+            << o.total_receive_budget << ")\n";
   EXPECT_LE(peak, o.total_receive_budget + o.max_message_size)
       << "incomplete messages pinned " << peak << " bytes over " << kClients << " connections";
   EXPECT_LE(server.manager().receive_reserved(), o.total_receive_budget + 2 * o.max_message_size);
