@@ -43,6 +43,9 @@ p::CommunicatorOptions options(const std::string& name) {
   o.connection.max_message_size = kLargest;
   o.connection.send_queue_limit = 2 * kLargest;
   o.connection.receive_budget = 2 * kLargest;
+  // Every client of the benchmark is on 127.0.0.1, and one echo is as large as the budget.
+  o.connection.max_connections_per_address = o.connection.max_connections;
+  o.connection.total_receive_budget = 4 * kLargest;
   o.call_timeout = 60s;
   o.name = name;
   o.logger = std::make_shared<spdlog::logger>(

@@ -33,7 +33,7 @@ class ThermometerService final
   }
   void implement_listener(icars::planet::Servant& servant) override {
     servant.implement(TemperatureListener::on_temperature,
-                      [this](const TemperatureEvent& e) { deliver(e); });
+                      [this](const TemperatureEvent& e, const icars::planet::Current& c) { deliver(e, c); });
   }
 };
 
