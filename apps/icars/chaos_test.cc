@@ -9,8 +9,9 @@
 //   cut        the proxy closes the link with FIN or with RST
 //   blackhole  the proxy forwards nothing for 0.3-2.5 s or 7-9 s
 //   delay      the proxy delays every byte by 20-300 ms for 2-8 s
-// A fault that drops the link is followed by waiting for the manager to register again; then
-// 30 minutes to 4 simulated hours pass before the next. Afterwards, from the mediator's trace (--trace),
+// A fault that drops the link is followed by waiting for the manager to register again; the
+// next comes 20 minutes to 2 simulated hours later, or (30% of the time) at a random time of
+// the next evening between 18:05 and 23:05, when the policy sends its commands. Afterwards, from the mediator's trace (--trace),
 // the managers' effect logs (--effects, one per incarnation) and their state files:
 //   1. every device's final state (TV, lights, speaker: what the mediator restores) equals the
 //      state its last acknowledged command left, or a DeviceRestored record after that command
@@ -18,8 +19,9 @@
 //   2. no acknowledged command was lost: each one ran on its device (same request id), and a
 //      command ran more than once only if its operation is idempotent;
 //   3. every failed command was reported: a behavior's command by a "call" record with ok=false
-//      from that behavior (unless the behavior had already ended: nobody is left to tell), the
-//      mediator's own re-applied state by the DeviceRestored record that says it failed;
+//      from that behavior (unless the behavior had been halted or had failed before: nobody is
+//      left to tell; one that had succeeded is not excused), the mediator's own re-applied state
+//      by the DeviceRestored record that says it failed;
 //   4. no stuck task or behavior (testing/house_processes.h), where a change a sensor saw while
 //      its manager was down counts from its return (if it still reads so), and a task the
 //      mediator stamped while the clock's manager was down started at the latest at its return;
@@ -182,12 +184,12 @@ struct Change {
 };
 
 // The changes the mediator could see, in the order they happened, from the day before `from`
-// to the day after `to`. A change while the sensor's manager was down (or just before: an event
-// in flight is lost with its link) is seen when it is back, by Sense re-reading the sensor, and
-// only if the sensor then reads otherwise than before the outage: a user who got up and sat down
-// again meanwhile changed nothing the mediator can see.
+// to the day after `to`. A change while the sensor's manager was down (or up to `guard` before:
+// the schedule's jitter, an event in flight lost with its link) is seen when it is back, by Sense
+// re-reading the sensor, and only if the sensor then reads otherwise than before the outage: a
+// user who got up and sat down again meanwhile changed nothing the mediator can see.
 std::vector<Change> visible_changes(const std::vector<Moment>& moments, const std::vector<Outage>& outages,
-                                    const std::vector<Manager>& managers, SimTime from, SimTime to) {
+                                    const std::vector<Manager>& managers, SimTime from, SimTime to, SimTime guard) {
   std::vector<Change> out;
   std::set<std::string> furniture;
   for (const auto& m : moments) furniture.insert(m.furniture);
@@ -209,7 +211,7 @@ std::vector<Change> visible_changes(const std::vector<Moment>& moments, const st
     // The outages of the manager of f's sensor, overlapping ones merged.
     std::vector<std::pair<SimTime, SimTime>> windows;
     for (const auto& o : outages) {
-      if (managers[o.manager].furniture.contains(f)) windows.emplace_back(o.from - 10min, o.to);
+      if (managers[o.manager].furniture.contains(f)) windows.emplace_back(o.from - guard, o.to);
     }
     std::sort(windows.begin(), windows.end());
     std::vector<std::pair<SimTime, SimTime>> merged;
@@ -508,7 +510,11 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
     std::printf("[chaos] %s %-7s %s: %s at %s\n", sim::format_time(from).c_str(), m.name.c_str(),
                 fault.describe().c_str(), m.rounds > rounds_before ? "registered again" : "link kept",
                 sim::format_time(to).c_str());
-    next = to + uniform(30min, 4h);
+    next = to + uniform(20min, 2h);
+    if (std::bernoulli_distribution(0.3)(rng)) {  // into the evening, when the policy sends commands
+      next = sim::kDay * (to / sim::kDay) + 18h + uniform(5min, 5h);
+      while (next < to + 10min) next += sim::kDay;
+    }
   }
   if (!died.empty()) FAIL() << died;
 
@@ -664,9 +670,16 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
       ++reported_to_behaviors;
       continue;
     }
-    // Nobody to tell: the behavior had ended (its task stopped) before the failure reached it.
-    std::size_t ended = kNone;
-    for (std::size_t i = c.call + 1; i < trace.size() && ended == kNone; ++i) {
+    // Nobody to tell: the activation that made the call had been halted (its task stopped) or had
+    // failed before the failure reached it. One that had succeeded claimed success too early.
+    std::size_t started = kNone, ended = kNone;
+    for (std::size_t i = c.call; i-- > 0 && started == kNone;) {
+      if (str(trace[i], "kind") == "behavior" && str(trace[i], "source") == c.behavior &&
+          str(trace[i], "event") == "start") {
+        started = i;
+      }
+    }
+    for (std::size_t i = started == kNone ? c.call : started + 1; i < trace.size() && ended == kNone; ++i) {
       const auto& r = trace[i];
       const auto event = str(r, "event");
       if (str(r, "kind") == "behavior" && str(r, "source") == c.behavior &&
@@ -674,26 +687,37 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
         ended = i;
       }
     }
-    if (ended != kNone && (ended < c.failed || time_of(trace[ended]) <= time_of(failure) + 5min)) {
+    const bool gone = ended != kNone && (ended < c.failed || time_of(trace[ended]) <= time_of(failure) + 5min);
+    if (gone && str(trace[ended], "event") != "success") {
       ++behavior_gone;
       continue;
     }
-    ADD_FAILURE() << "command " << c.request << " (" << c.key() << ") of behavior " << c.behavior << " failed at "
-                  << sim::format_time(time_of(failure)) << " (" << str(failure, "error")
-                  << "), and no \"call\" record with ok=false reported it to the behavior";
+    ADD_FAILURE() << "command " << c.request << " (" << c.key() << ") of behavior " << c.behavior << " (called at "
+                  << sim::format_time(time_of(trace[c.call])) << ") failed at " << sim::format_time(time_of(failure))
+                  << " (" << str(failure, "error") << "), and no \"call\" record with ok=false reported it to the "
+                  << "behavior"
+                  << (gone ? fmt::format(": the behavior had succeeded at {} with the command still unanswered",
+                                         sim::format_time(time_of(trace[ended])))
+                           : std::string());
   }
 
   // 4. No stuck task: the change that should end a task counts from when the mediator could see
-  // it. While the clock's manager was down the mediator's clock stood still (and then ran
-  // through the time missed): a task stamped within such an outage started at the latest when
-  // the manager was back.
-  const auto changes = visible_changes(moments, outages, managers, start, end);
+  // it; whether a change just before an outage was seen or not, the later of the two. While the
+  // clock's manager was down the mediator's clock stood still (and then ran through the time
+  // missed): a task stamped within such an outage started at the latest when it was back.
+  const std::vector<std::vector<Change>> variants = {
+      visible_changes(moments, outages, managers, start, end, SimTime(0)),
+      visible_changes(moments, outages, managers, start, end, jitter + 10min)};
   const auto next_change = [&](SimTime t) {  // t: a task's start + 15 min (find_overdue_tasks)
     for (const auto& o : outages) {
       if (managers[o.manager].simulation && o.from - 1min <= t - 15min && t - 15min <= o.to) t = std::max(t, o.to + 15min);
     }
-    const auto it = std::find_if(changes.begin(), changes.end(), [t](const Change& c) { return c.happened > t; });
-    return it == changes.end() ? SimTime::max() : it->visible;
+    SimTime latest{0};
+    for (const auto& changes : variants) {
+      const auto it = std::find_if(changes.begin(), changes.end(), [t](const Change& c) { return c.happened > t; });
+      latest = std::max(latest, it == changes.end() ? SimTime::max() : it->visible);
+    }
+    return latest;
   };
   auto tasks = follow_tasks(trace);
   find_overdue_tasks(tasks, next_change, jitter + 45min, end);
