@@ -74,33 +74,6 @@ const std::string kPolicy = kSource + "/examples/smart_home/paper_home.xml";
 const std::string kHouse = kSource + "/houses/paper_house.xml";
 constexpr std::size_t kNone = static_cast<std::size_t>(-1);
 
-// --- Settings ------------------------------------------------------------------------------------
-
-struct Settings {
-  int days = 7;
-  double speed = 3600;
-  std::uint64_t seed = 0;
-  bool faults = true;
-  std::string keep;  // directory for the artifacts, or ""
-};
-
-Settings settings_from_environment() {
-  Settings s;
-  s.seed = std::random_device{}();
-  try {
-    if (auto v = environment_variable("ICARS_CHAOS_SEED")) s.seed = std::stoull(*v);
-    if (auto v = environment_variable("ICARS_CHAOS_DAYS")) s.days = std::stoi(*v);
-    if (auto v = environment_variable("ICARS_CHAOS_SPEED")) s.speed = std::stod(*v);
-  } catch (const std::exception&) {
-    throw std::invalid_argument("ICARS_CHAOS_SEED, ICARS_CHAOS_DAYS and ICARS_CHAOS_SPEED must be numbers");
-  }
-  if (s.days < 1) throw std::invalid_argument("ICARS_CHAOS_DAYS must be at least 1");
-  if (s.speed < 1 || s.speed > 20000) throw std::invalid_argument("ICARS_CHAOS_SPEED must be 1 to 20000");
-  if (auto v = environment_variable("ICARS_CHAOS_KEEP")) s.keep = *v;
-  if (auto v = environment_variable("ICARS_CHAOS_FAULTS")) s.faults = *v != "0";
-  return s;
-}
-
 // --- The faults ----------------------------------------------------------------------------------
 
 enum class FaultKind { kill, stop, cut_fin, cut_rst, blackhole, delay };
@@ -247,9 +220,11 @@ std::uint32_t request_of(const json& j) {
   return j.contains("request") && j["request"].is_number() ? j["request"].get<std::uint32_t>() : 0;
 }
 
-// The operations that set a value, so running one twice leaves what running it once does.
+// The commands idl/home.idl declares idempotent (running one twice leaves what running it once
+// does): PLANET may send them again over a new link.
 bool idempotent(const std::string& method) {
-  return method == "set_power" || method == "set_channel" || method == "set_volume" || method == "set_intensity";
+  return method == "set_power" || method == "set_channel" || method == "set_volume" || method == "set_intensity" ||
+         method == "stop" || method == "turn_to";
 }
 
 // The state the mediator restores when a device comes back (service::Adaptor::restore), as the
@@ -366,33 +341,28 @@ SimTime time_of(const json& r) { return SimTime(r.value("t", std::int64_t{0})); 
 }  // namespace
 
 TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
-  const auto s = settings_from_environment();
+  const auto s = run_settings("ICARS_CHAOS", "FAULTS", 1);
   std::printf("[chaos] seed %llu (ICARS_CHAOS_SEED=%llu to repeat), %d days at %.0fx\n",
               static_cast<unsigned long long>(s.seed), static_cast<unsigned long long>(s.seed), s.days, s.speed);
   std::mt19937_64 rng(s.seed);
   const auto wall_start = std::chrono::steady_clock::now();
 
-  const fs::path dir = s.keep.empty() ? fs::path(::testing::TempDir()) / fmt::format("icars_chaos_{}", ::getpid())
-                                      : fs::path(s.keep);
-  fs::create_directories(dir);
+  const fs::path dir = run_directory(s.keep, "icars_chaos");
   std::printf("[chaos] logs, trace, effects and state files in %s (kept when the test fails)\n", dir.c_str());
   const auto trace_file = dir / "trace.jsonl";
 
-  const auto house = sim::load_house(kHouse);
-  auto managers = split_paper_house(house);
-  const auto moments = occupancy_moments(house, sensed_furniture(managers));
+  auto paper = load_paper_house(kHouse);
+  const auto& house = paper.house;
+  auto& managers = paper.managers;
+  const auto& moments = paper.moments;
   ASSERT_FALSE(moments.empty());
-  const SimTime jitter = schedule_jitter(house);
   const auto env = child_environment();
 
   // --- The mediator: it stops by itself at 18:00 of the last day. ---
   const SimTime start = house.start_time;
   const SimTime end = start + sim::kDay * s.days;
   ASSERT_EQ(start % sim::kDay, 18h) << "the chaos test's days run 18:00 to 18:00";
-  Program server(dir / "icars.stderr", env,
-                 {kIcars, "run", kPolicy, "--world", kHouse, "--external", "--listen", "127.0.0.1:0", "--speed",
-                  fmt::format("{}", s.speed), "--until", "18:00", "--days", std::to_string(s.days), "--quiet",
-                  "--trace", trace_file.string()});
+  Program server(dir / "icars.stderr", env, mediator_command(kIcars, kPolicy, kHouse, s.speed, s.days, trace_file));
   std::vector<std::string> server_output;
   const std::string port = start_mediator(server, server_output);
   ASSERT_FALSE(port.empty()) << "the mediator did not start; its stderr:\n" << tail(server.stderr_text());
@@ -455,7 +425,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   };
   SimTime next = start + uniform(1h, 3h);
   bool running = true;
-  while (s.faults && running) {
+  while (s.enabled && running) {
     const auto fault = draw_fault(rng, managers.size());
     const SimTime span((fault.length.count() + 5000) * static_cast<std::int64_t>(s.speed));  // + time to recover
     if (next + span > end - 3h) break;
@@ -519,21 +489,14 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   if (!died.empty()) FAIL() << died;
 
   // --- The end: the mediator stops by itself; then the managers, on SIGTERM. ---
-  run_until(after(120s + clock.wall(std::max(end - clock.now(), SimTime(0)))), [&] { return server.exited(); });
-  if (!died.empty()) FAIL() << died;
+  wait_for_end(server, clock, end, pump);
   ASSERT_TRUE(server.exited()) << "the mediator did not stop at the end of day " << s.days;
   pump();
   const int server_status = server.wait();
-  for (auto& line : server.lines()) server_output.push_back(std::move(line));
   for (auto& m : managers) {
     if (!m.registered) failures.push_back(fmt::format("{} did not register again after its last restart", m.name));
-    m.process->signal(SIGTERM);
   }
-  std::map<std::string, int> manager_status;
-  for (auto& m : managers) {
-    EXPECT_TRUE(planet_test::wait_until([&] { return m.process->exited(); }, 60s)) << m.name << " ignored SIGTERM";
-    manager_status[m.name] = m.process->wait();
-  }
+  auto manager_status = stop_managers(managers, failures);
   for (auto& line : server.lines()) server_output.push_back(std::move(line));
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
@@ -707,7 +670,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   // missed): a task stamped within such an outage started at the latest when it was back.
   const std::vector<std::vector<Change>> variants = {
       visible_changes(moments, outages, managers, start, end, SimTime(0)),
-      visible_changes(moments, outages, managers, start, end, jitter + 10min)};
+      visible_changes(moments, outages, managers, start, end, paper.jitter + 10min)};
   const auto next_change = [&](SimTime t) {  // t: a task's start + 15 min (find_overdue_tasks)
     for (const auto& o : outages) {
       if (managers[o.manager].simulation && o.from - 1min <= t - 15min && t - 15min <= o.to) t = std::max(t, o.to + 15min);
@@ -720,7 +683,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
     return latest;
   };
   auto tasks = follow_tasks(trace);
-  find_overdue_tasks(tasks, next_change, jitter + 45min, end);
+  find_overdue_tasks(tasks, next_change, paper.jitter + 45min, end);
 
   // --- The figures. ---
   std::printf("[chaos] %d faults:", faults);
@@ -736,26 +699,19 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   // --- The other checks. ---
   for (const auto& f : failures) ADD_FAILURE() << f;
   for (const auto& line : tasks.stuck) ADD_FAILURE() << "stuck: " << line;
-  const auto server_log = server.stderr_text();
-  EXPECT_TRUE(WIFEXITED(server_status) && WEXITSTATUS(server_status) == 0)
-      << "mediator: " << describe_status(server_status) << "; its stderr:\n" << tail(server_log);
-  EXPECT_FALSE(sanitizer_report(server_log)) << "the mediator's stderr has a sanitizer report:\n" << tail(server_log, 60);
+  for (const auto& p : exit_problems("the mediator", server_status, server.stderr_text())) ADD_FAILURE() << p;
   EXPECT_TRUE(std::any_of(server_output.begin(), server_output.end(),
                           [](const std::string& l) { return l.starts_with("=== summary"); }))
       << "no summary from the mediator";
   for (const auto& m : managers) {
-    const int status = manager_status[m.name];
-    const auto log = m.process->stderr_text();
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0)
-        << m.name << ": " << describe_status(status) << "; its stderr:\n" << tail(log);
-    EXPECT_FALSE(sanitizer_report(log)) << m.name << "'s stderr has a sanitizer report:\n" << tail(log, 60);
+    for (const auto& p : exit_problems(m.name, manager_status[m.name], m.process->stderr_text())) ADD_FAILURE() << p;
     EXPECT_EQ(static_cast<int>(m.state_lines.size()), m.incarnation) << m.name << ": a STATE line per incarnation";
     for (std::size_t i = 1; i < m.state_lines.size(); ++i) {
       EXPECT_TRUE(m.state_lines[i].starts_with("STATE restored")) << m.name << " incarnation " << i + 1 << ": "
                                                                    << m.state_lines[i];
     }
   }
-  if (s.faults) {
+  if (s.enabled) {
     EXPECT_GE(faults, 2 * s.days) << "too few faults to call this chaos";
   }
   EXPECT_GT(acknowledged, 0);

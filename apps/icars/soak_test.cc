@@ -57,34 +57,6 @@ constexpr bool kAsan = true;
 constexpr bool kAsan = false;
 #endif
 
-// --- Settings ------------------------------------------------------------------------------------
-
-struct Settings {
-  int days = 7;
-  double speed = 3600;
-  std::uint64_t seed = 0;
-  bool kills = true;
-  std::string keep;  // directory for the artifacts, or ""
-};
-
-Settings settings_from_environment() {
-  Settings s;
-  s.seed = std::random_device{}();
-  const auto var = environment_variable;
-  try {
-    if (auto v = var("ICARS_SOAK_SEED")) s.seed = std::stoull(*v);
-    if (auto v = var("ICARS_SOAK_DAYS")) s.days = std::stoi(*v);
-    if (auto v = var("ICARS_SOAK_SPEED")) s.speed = std::stod(*v);
-  } catch (const std::exception&) {
-    throw std::invalid_argument("ICARS_SOAK_SEED, ICARS_SOAK_DAYS and ICARS_SOAK_SPEED must be numbers");
-  }
-  if (s.days < 2) throw std::invalid_argument("ICARS_SOAK_DAYS must be at least 2 (day 2 is the memory baseline)");
-  if (s.speed < 1 || s.speed > 20000) throw std::invalid_argument("ICARS_SOAK_SPEED must be 1 to 20000");
-  if (auto v = var("ICARS_SOAK_KEEP")) s.keep = *v;
-  if (auto v = var("ICARS_SOAK_KILLS")) s.kills = *v != "0";
-  return s;
-}
-
 // --- Memory --------------------------------------------------------------------------------------
 
 struct Memory {
@@ -144,26 +116,24 @@ std::vector<Action> plan(std::mt19937_64& rng, std::vector<Manager>& managers, c
 }  // namespace
 
 TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
-  const auto s = settings_from_environment();
+  const auto s = run_settings("ICARS_SOAK", "KILLS", 2, " (day 2 is the memory baseline)");
   std::printf("[soak] seed %llu (ICARS_SOAK_SEED=%llu to repeat), %d days at %.0fx, %s build\n",
               static_cast<unsigned long long>(s.seed), static_cast<unsigned long long>(s.seed), s.days, s.speed,
               kAsan ? "ASan" : "non-ASan");
   std::mt19937_64 rng(s.seed);
   const auto wall_start = std::chrono::steady_clock::now();
 
-  const fs::path dir = s.keep.empty() ? fs::path(::testing::TempDir()) / fmt::format("icars_soak_{}", ::getpid())
-                                      : fs::path(s.keep);
-  fs::create_directories(dir);
+  const fs::path dir = run_directory(s.keep, "icars_soak");
   std::printf("[soak] logs and trace in %s (kept when the test fails)\n", dir.c_str());
   const auto trace_file = dir / "trace.jsonl";
 
   // The paper house's devices over three managers: the robot's four; the living room's; the
   // bedroom's with the speech and vision engines and the Simulation device (the house's clock).
-  const auto house = sim::load_house(kHouse);
-  auto managers = split_paper_house(house);
-  const auto moments = occupancy_moments(house, sensed_furniture(managers));
+  auto paper = load_paper_house(kHouse);
+  const auto& house = paper.house;
+  auto& managers = paper.managers;
+  const auto& moments = paper.moments;
   ASSERT_FALSE(moments.empty());
-  const SimTime jitter = schedule_jitter(house);
   // A 16 MiB ASan quarantine makes RSS comparable from day 2 on (child_environment).
   const auto env = child_environment();
 
@@ -171,10 +141,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   const SimTime start = house.start_time;
   const SimTime end = start + sim::kDay * s.days;  // the house starts at 18:00: --until 18:00
   ASSERT_EQ(start % sim::kDay, 18h) << "the soak's days run 18:00 to 18:00";
-  Program server(dir / "icars.stderr", env,
-                 {kIcars, "run", kPolicy, "--world", kHouse, "--external", "--listen", "127.0.0.1:0", "--speed",
-                  fmt::format("{}", s.speed), "--until", "18:00", "--days", std::to_string(s.days), "--quiet",
-                  "--trace", trace_file.string()});
+  Program server(dir / "icars.stderr", env, mediator_command(kIcars, kPolicy, kHouse, s.speed, s.days, trace_file));
   std::vector<std::string> server_output;
   const std::string port = start_mediator(server, server_output);
   ASSERT_FALSE(port.empty()) << "the server did not start; its stderr:\n" << tail(server.stderr_text());
@@ -201,7 +168,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
 
   // --- The plan: kills and restarts, and a memory sample every day at 12:00. ---
   const SimTime restart_allowance(static_cast<std::int64_t>(2000 * s.speed));  // 2 s of wall time
-  auto actions = s.kills ? plan(rng, managers, moments, start, end, restart_allowance, jitter) : std::vector<Action>{};
+  auto actions = s.enabled ? plan(rng, managers, moments, start, end, restart_allowance, paper.jitter) : std::vector<Action>{};
   for (int day = 1; day <= s.days; ++day) actions.push_back({Action::sample, start + sim::kDay * day - 6h, 0, day});
   std::stable_sort(actions.begin(), actions.end(), [](const Action& a, const Action& b) { return a.at < b.at; });
 
@@ -243,25 +210,15 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   }
 
   // --- The end: the server stops by itself; then the managers, on SIGTERM. ---
-  const auto end_wall_bound = std::chrono::steady_clock::now() + 120s +
-      std::chrono::milliseconds(static_cast<std::int64_t>(static_cast<double>((end - sim_now()).count()) / s.speed));
-  while (!server.exited() && std::chrono::steady_clock::now() < end_wall_bound) {
-    pump();
-    std::this_thread::sleep_for(5ms);
-  }
+  wait_for_end(server, clock, end, pump);
   ASSERT_TRUE(server.exited()) << "the server did not stop at the end of day " << s.days;
   pump();
   const int server_status = server.wait();
   for (auto& line : server.lines()) server_output.push_back(std::move(line));
   for (auto& m : managers) {
     if (!m.registered) failures.push_back(fmt::format("{} did not register again after its last restart", m.name));
-    m.process->signal(SIGTERM);
   }
-  std::map<std::string, int> manager_status;
-  for (auto& m : managers) {
-    EXPECT_TRUE(planet_test::wait_until([&] { return m.process->exited(); }, 60s)) << m.name << " ignored SIGTERM";
-    manager_status[m.name] = m.process->wait();
-  }
+  auto manager_status = stop_managers(managers, failures);
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
   // --- What the server did, from its trace. ---
@@ -285,7 +242,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   // jitter and the user's walk) after the moment that should end it. The run ends during
   // Observation.
   auto tasks = follow_tasks(trace);
-  find_overdue_tasks(tasks, [&](SimTime t) { return next_moment(moments, t); }, jitter + 45min, end);
+  find_overdue_tasks(tasks, [&](SimTime t) { return next_moment(moments, t); }, paper.jitter + 45min, end);
   const auto& stuck = tasks.stuck;
 
   // --- The figures. ---
@@ -329,21 +286,14 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
 
   // --- The checks. ---
   for (const auto& f : failures) ADD_FAILURE() << f;
-  const auto server_log = server.stderr_text();
-  EXPECT_TRUE(WIFEXITED(server_status) && WEXITSTATUS(server_status) == 0)
-      << "server: " << describe_status(server_status) << "; its stderr:\n" << tail(server_log);
-  EXPECT_FALSE(sanitizer_report(server_log)) << "the server's stderr has a sanitizer report:\n" << tail(server_log, 60);
+  for (const auto& p : exit_problems("the server", server_status, server.stderr_text())) ADD_FAILURE() << p;
   EXPECT_TRUE(std::any_of(server_output.begin(), server_output.end(),
                           [](const std::string& l) { return l.starts_with("=== summary"); }))
       << "no summary from the server";
   for (const auto& m : managers) {
-    const int status = manager_status[m.name];
-    const auto log = m.process->stderr_text();
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0)
-        << m.name << ": " << describe_status(status) << "; its stderr:\n" << tail(log);
-    EXPECT_FALSE(sanitizer_report(log)) << m.name << "'s stderr has a sanitizer report:\n" << tail(log, 60);
+    for (const auto& p : exit_problems(m.name, manager_status[m.name], m.process->stderr_text())) ADD_FAILURE() << p;
   }
-  if (s.kills) {
+  if (s.enabled) {
     EXPECT_GE(kills, s.days / 2) << "too few kills to call this a soak";
   }
   EXPECT_EQ(registrations, kills) << "every restarted device manager registers again";

@@ -1,12 +1,16 @@
 #include "house_processes.h"
 
 #include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <signal.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
-#include <map>
+#include <random>
+#include <thread>
 
 namespace icars_test {
 
@@ -36,10 +40,53 @@ std::string describe_status(int status) {
   return fmt::format("wait status {}", status);
 }
 
+std::vector<std::string> exit_problems(const std::string& who, int status, const std::string& log) {
+  std::vector<std::string> out;
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    out.push_back(fmt::format("{}: {}; its stderr:\n{}", who, describe_status(status), tail(log)));
+  }
+  if (sanitizer_report(log)) out.push_back(fmt::format("{}'s stderr has a sanitizer report:\n{}", who, tail(log, 60)));
+  return out;
+}
+
+fs::path run_directory(const std::string& keep, const std::string& name) {
+  const fs::path dir = keep.empty() ? fs::path(::testing::TempDir()) / fmt::format("{}_{}", name, ::getpid()) : fs::path(keep);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<std::string> mediator_command(const std::string& icars, const std::string& policy,
+                                          const std::string& house, double speed, int days, const fs::path& trace) {
+  return {icars,     "run",     policy,  "--world", house,    "--external", "--listen", "127.0.0.1:0",
+          "--speed", fmt::format("{}", speed), "--until", "18:00", "--days", std::to_string(days), "--quiet",
+          "--trace", trace.string()};
+}
+
 std::optional<std::string> environment_variable(const char* name) {
   const char* v = std::getenv(name);
   if (v == nullptr || *v == '\0') return std::nullopt;
   return std::string(v);
+}
+
+RunSettings run_settings(const std::string& prefix, const std::string& toggle, int min_days,
+                         const std::string& why_min_days) {
+  RunSettings s;
+  s.seed = std::random_device{}();
+  const auto var = [&prefix](const char* name) { return environment_variable((prefix + "_" + name).c_str()); };
+  try {
+    if (auto v = var("SEED")) s.seed = std::stoull(*v);
+    if (auto v = var("DAYS")) s.days = std::stoi(*v);
+    if (auto v = var("SPEED")) s.speed = std::stod(*v);
+  } catch (const std::exception&) {
+    throw std::invalid_argument(fmt::format("{0}_SEED, {0}_DAYS and {0}_SPEED must be numbers", prefix));
+  }
+  if (s.days < min_days) {
+    throw std::invalid_argument(fmt::format("{}_DAYS must be at least {}{}", prefix, min_days, why_min_days));
+  }
+  if (s.speed < 1 || s.speed > 20000) throw std::invalid_argument(prefix + "_SPEED must be 1 to 20000");
+  if (auto v = var("KEEP")) s.keep = *v;
+  if (auto v = var(toggle.c_str())) s.enabled = *v != "0";
+  return s;
 }
 
 std::vector<std::string> child_environment() {
@@ -144,6 +191,26 @@ void Manager::read_output(SimTime now, std::vector<std::string>& failures) {
   }
 }
 
+void wait_for_end(Program& mediator, const SharedClock& clock, SimTime end, const std::function<void()>& pump) {
+  const auto bound = std::chrono::steady_clock::now() + 120s + clock.wall(std::max(end - clock.now(), SimTime(0)));
+  while (!mediator.exited() && std::chrono::steady_clock::now() < bound) {
+    pump();
+    std::this_thread::sleep_for(5ms);
+  }
+}
+
+std::map<std::string, int> stop_managers(std::vector<Manager>& managers, std::vector<std::string>& failures) {
+  for (auto& m : managers) m.process->signal(SIGTERM);
+  std::map<std::string, int> status;
+  for (auto& m : managers) {
+    if (!planet_test::wait_until([&] { return m.process->exited(); }, 60s)) {
+      failures.push_back(m.name + " ignored SIGTERM");
+    }
+    status[m.name] = m.process->wait();
+  }
+  return status;
+}
+
 std::vector<Manager> split_paper_house(const sim::House& house) {
   std::vector<Manager> managers(3);
   managers[0].name = "robot";
@@ -199,6 +266,15 @@ SimTime schedule_jitter(const sim::House& house) {
   SimTime jitter{0};
   for (const auto& u : house.users) jitter = std::max(jitter, u.time_jitter);
   return jitter;
+}
+
+PaperHouse load_paper_house(const std::string& house_file) {
+  PaperHouse out;
+  out.house = sim::load_house(house_file);
+  out.managers = split_paper_house(out.house);
+  out.moments = occupancy_moments(out.house, sensed_furniture(out.managers));
+  out.jitter = schedule_jitter(out.house);
+  return out;
 }
 
 // --- The trace -------------------------------------------------------------------------------------

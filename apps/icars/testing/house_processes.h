@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -38,6 +39,20 @@ std::string describe_status(int status);  // "exit status 0", "killed by signal 
 
 // The value of environment variable `name`; nullopt when it is unset or empty.
 std::optional<std::string> environment_variable(const char* name);
+
+// A run's settings from <PREFIX>_SEED (default: random), _DAYS (7, at least `min_days`), _SPEED
+// (3600 simulated seconds per wall-clock second, 1 to 20000), _KEEP (a directory for the
+// artifacts) and the switch <PREFIX>_<toggle> ("0": off; default on). Throws
+// std::invalid_argument naming the variable that is wrong.
+struct RunSettings {
+  int days = 7;
+  double speed = 3600;
+  std::uint64_t seed = 0;
+  bool enabled = true;  // the toggle: kills, faults
+  std::string keep;     // directory for the artifacts, or ""
+};
+RunSettings run_settings(const std::string& prefix, const std::string& toggle, int min_days,
+                         const std::string& why_min_days = "");
 
 // The environment for the children: ASAN_OPTIONS as inherited plus leak detection and a 16 MiB
 // quarantine (ASan's default 256 MiB makes a busy process's RSS climb for hours: with 16 MiB it
@@ -69,6 +84,18 @@ class Program {
   fs::path log_;
   std::unique_ptr<planet_test::ChildProcess> process_;
 };
+
+// What is wrong with how a process ended: not exit status 0 (with its stderr's tail), a sanitizer
+// report in its stderr. Empty when it ended well.
+std::vector<std::string> exit_problems(const std::string& who, int status, const std::string& log);
+
+// The directory for a run's logs and records: `keep`, or else <test temp dir>/<name>_<pid>.
+fs::path run_directory(const std::string& keep, const std::string& name);
+
+// `icars run POLICY --world HOUSE --external` on 127.0.0.1, quiet, tracing to `trace`, stopping by
+// itself at 18:00 of day `days` (the paper house starts at 18:00).
+std::vector<std::string> mediator_command(const std::string& icars, const std::string& policy,
+                                          const std::string& house, double speed, int days, const fs::path& trace);
 
 // Starts `icars run` (argv without the program) and waits up to 60 s for the port its
 // mediating server listens on, collecting its stdout in `output`. Returns "" when it exited or
@@ -121,6 +148,13 @@ struct Manager {
   void read_output(SimTime now, std::vector<std::string>& failures);
 };
 
+// Pumps (`pump`) until the mediator has exited, at most 120 s of wall time past `end`.
+void wait_for_end(Program& mediator, const SharedClock& clock, SimTime end, const std::function<void()>& pump);
+
+// SIGTERM to every manager's current incarnation; waits up to 60 s for each and returns their
+// wait statuses by name. One that ignores SIGTERM is added to `failures`.
+std::map<std::string, int> stop_managers(std::vector<Manager>& managers, std::vector<std::string>& failures);
+
 // The paper house's devices over three managers: "robot" (the robot's four), "living" (the
 // living room's) and "bedroom" (the bedroom's, with the speech and vision engines and the
 // Simulation device, the house's clock).
@@ -140,6 +174,16 @@ std::vector<Moment> occupancy_moments(const icars::sim::House& house, const std:
 SimTime next_moment(const std::vector<Moment>& moments, SimTime t, const std::string& furniture = "");
 // The users' largest schedule jitter.
 SimTime schedule_jitter(const icars::sim::House& house);
+
+// A house file split over three managers (split_paper_house), with its occupancy moments and
+// the schedule's jitter.
+struct PaperHouse {
+  icars::sim::House house;
+  std::vector<Manager> managers;
+  std::vector<Moment> moments;
+  SimTime jitter{0};
+};
+PaperHouse load_paper_house(const std::string& house_file);
 
 // --- The trace -----------------------------------------------------------------------------------
 
