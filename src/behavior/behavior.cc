@@ -218,6 +218,20 @@ void Behavior::trace_call_failure(const std::string& op, std::exception_ptr e) {
          {{"call", op}, {"ok", false}, {"error", what}});
 }
 
+std::function<void(std::exception_ptr)> Behavior::failure_recorder(const std::string& op) const {
+  if (!env_) return [](std::exception_ptr) {};
+  return [trace = &env_->trace, runtime = &env_->runtime, source = path(), op](std::exception_ptr e) {
+    const auto what = describe(e);
+    TraceRecord r;
+    r.time = runtime->now();
+    r.kind = "call";
+    r.source = source;
+    r.text = fmt::format("{} -> {} failed: {}", source, op, what);
+    r.fields = {{"call", op}, {"ok", false}, {"error", what}};
+    trace->record(std::move(r));
+  };
+}
+
 void Behavior::record(std::string kind, std::string text,
                       std::vector<std::pair<std::string, TraceValue>> fields) {
   if (!env_) return;

@@ -270,23 +270,28 @@ void SpeakerService::apply_state(const DeviceState& wanted, std::function<void(s
   run_steps(std::move(steps), 0, std::move(done));
 }
 
+// A reading carries the last event's time (the sensor has no clock of its own to ask); before
+// any event, 0.
 void MotionSensorService::reread(const home::MotionSensorPrx& sensor) {
   sensor.motion_async([weak = weak_from_this()](std::exception_ptr e, bool motion = false) {
     auto self = std::static_pointer_cast<MotionSensorService>(weak.lock());
     if (!self || e) return;
-    auto reading = *self->last_event();
-    reading.motion = motion;
+    const auto last = self->last_event();
+    home::MotionEvent reading{self->device_id(), self->attributes().room, motion, last ? last->time_ms : 0};
     self->deliver_if_changed(reading);
   });
 }
 
 void OccupancyService::reread(const home::OccupancySensorPrx& sensor) {
-  sensor.occupied_async([weak = weak_from_this()](std::exception_ptr e, bool occupied = false) {
-    auto self = std::static_pointer_cast<OccupancyService>(weak.lock());
-    if (!self || e) return;
-    auto reading = *self->last_event();
-    reading.occupied = occupied;
-    self->deliver_if_changed(reading);
+  sensor.furniture_async([weak = weak_from_this(), sensor](std::exception_ptr e, std::string furniture = {}) {
+    if (e) return;
+    sensor.occupied_async([weak, furniture](std::exception_ptr e2, bool occupied = false) {
+      auto self = std::static_pointer_cast<OccupancyService>(weak.lock());
+      if (!self || e2) return;
+      const auto last = self->last_event();
+      home::OccupancyEvent reading{self->device_id(), furniture, occupied, last ? last->time_ms : 0};
+      self->deliver_if_changed(reading);
+    });
   });
 }
 

@@ -189,12 +189,14 @@ class Behavior : public Owner {
   void invoke(const service::Service& service, std::string op, Start start, Done done) {
     const std::string full = service.id() + "." + op;
     trace_call(full);
-    auto finish = guard([this, full, done](std::exception_ptr e, auto... results) mutable {
-      if (e) trace_call_failure(full, e);
+    auto finish = guard([done](std::exception_ptr e, auto... results) mutable {
       done(e, std::move(results)...);
     });
     try {
-      start([finish](std::exception_ptr e, auto&&... results) mutable {
+      // The failure is traced where the call completes, so a command that fails after this
+      // activation ended (a behavior that succeeded without waiting for it) is still reported.
+      start([finish, failed = failure_recorder(full)](std::exception_ptr e, auto&&... results) mutable {
+        if (e) failed(e);
         finish(e, std::forward<decltype(results)>(results)...);
       });
     } catch (...) {  // not even sent (the service is unbound)
@@ -239,6 +241,9 @@ class Behavior : public Owner {
   void notify_owner_done();
   void trace_call(const std::string& op);
   void trace_call_failure(const std::string& op, std::exception_ptr e);
+  // Traces the failure of call `op` from any thread, even after this activation (or this
+  // behavior) ended: it holds only the trace and the runtime, which outlive every behavior.
+  std::function<void(std::exception_ptr)> failure_recorder(const std::string& op) const;
   void record(std::string kind, std::string text, std::vector<std::pair<std::string, TraceValue>> fields = {});
 
   std::string type_;

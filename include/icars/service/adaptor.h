@@ -164,9 +164,14 @@ class SensorAdaptor : public AdaptorOf<Prx> {
     remember(e);
     events_.notify(e);
   }
-  // Delivers `e` (a reading taken after the device came back) unless it says what the last
-  // event said: a change missed while the device was away reaches listeners.
+  // Delivers `e` (a reading taken when the sensor was bound) unless it says what the last event
+  // said: a change missed while the device was away reaches listeners. The first reading, before
+  // any event, is only the baseline (what a behavior reads when it starts), not an event.
   void deliver_if_changed(const Event& e) {
+    if (!last_event()) {
+      remember(e);
+      return;
+    }
     if (!changed(e)) return;
     ++received_;
     remember(e);
@@ -196,8 +201,8 @@ class SensorAdaptor : public AdaptorOf<Prx> {
       if (!self) return;
       if (e) {
         self->log_failure(communicator, "could not subscribe to its sensor", e);
-      } else if (self->last_event()) {
-        self->reread(self->proxy());  // it came back: what changed while it was away
+      } else {
+        self->reread(self->proxy());  // the baseline, or what changed while it was away
       }
     });
   }
