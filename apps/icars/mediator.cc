@@ -595,6 +595,9 @@ int run(const RunOptions& options) {
   const auto ended_at = clock->now();
   manager.stop();
   runtime.drain(5s);
+  // The run is over: the house's devices going away with it are no outage to report.
+  sf.container().remove_device_watcher(device_watch);
+  spdlog::set_level(spdlog::level::err);
   if (home) {
     for (const auto id : world_listeners) home->world().remove_listener(id);
   }
