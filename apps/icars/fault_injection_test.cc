@@ -28,12 +28,14 @@
 
 #include "child_process.h"
 #include "fault_proxy.h"
+#include "house_processes.h"
 
 using nlohmann::json;
 using namespace std::chrono_literals;
 using planet_test::Direction;
 using planet_test::FaultProxy;
 using Clock = std::chrono::steady_clock;
+using icars_test::read_json_lines;
 
 namespace {
 
@@ -45,15 +47,6 @@ constexpr int kHouseStartMinute = 18 * 60;  // paper_house.xml starts at 18:00
 
 std::string temp(const std::string& name) {
   return ::testing::TempDir() + "icars_faults_" + std::to_string(::getpid()) + "_" + name;
-}
-
-std::vector<json> read_json_lines(const std::string& path) {
-  std::vector<json> out;
-  std::ifstream in(path);
-  for (std::string line; std::getline(in, line);) {
-    if (!line.empty()) out.push_back(json::parse(line));
-  }
-  return out;
 }
 
 std::string str(const json& j, const char* key) {
