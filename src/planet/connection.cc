@@ -4,6 +4,8 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
+#include <poll.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <sys/uio.h>
 
@@ -219,7 +221,8 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
 Connection::~Connection() = default;
 
 void Connection::start() {
-  last_received_ = opened_at_ = std::chrono::steady_clock::now();
+  opened_at_ = std::chrono::steady_clock::now();
+  last_received_.store(opened_at_, std::memory_order_relaxed);
   arm_timer();  // the handshake timeout covers the TLS handshake too
   if (!tls_) {
     begin_handshake();
@@ -309,6 +312,12 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   if (!send_open_ || state_.load() != State::open) {
     throw Error(ErrorKind::disconnected, fmt::format("connection to {} is not open", remote_address_));
   }
+  if (peer_hung_up_unread()) {
+    throw Error(ErrorKind::disconnected,
+                fmt::format("{} closed the connection while nothing was heard from it for over "
+                            "{} ms (this process did not run meanwhile)",
+                            remote_address_, options_.heartbeat_timeout.count()));
+  }
   if (message.size() > options_.max_message_size) {
     throw Error(ErrorKind::overloaded,
                 fmt::format("message of {} bytes exceeds max_message_size ({} bytes)",
@@ -335,6 +344,14 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   if (!tls_ && !writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
       messages_.empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
+    // Written, but into a link the peer had closed while this process did not run (it stopped
+    // between the check above and the write): the message is lost, and the caller is told.
+    if (peer_hung_up_unread()) {
+      throw Error(ErrorKind::disconnected,
+                  fmt::format("{} had closed the connection (nothing heard from it for over {} "
+                              "ms): the message was not received",
+                              remote_address_, options_.heartbeat_timeout.count()));
+    }
     return;
   }
   messages_.push_back(std::move(msg));
@@ -552,7 +569,13 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     return;
   }
   rend_ += n;
-  last_received_ = std::chrono::steady_clock::now();
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_received_.load(std::memory_order_relaxed) >= options_.heartbeat_timeout) {
+    // Bytes after a silence this long may be old news (this process did not run): until a
+    // heartbeat timeout has passed, senders check that the peer has not hung up meanwhile.
+    suspect_until_.store(now + options_.heartbeat_timeout, std::memory_order_relaxed);
+  }
+  last_received_.store(now, std::memory_order_relaxed);
   {
     std::lock_guard lock(send_mutex_);
     stats_.bytes_received += n;
@@ -593,7 +616,7 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     rbegin_ = rend_ = 0;
     partial_frame_since_.reset();
   } else if (completed_frame || !partial_frame_since_) {
-    partial_frame_since_ = last_received_;
+    partial_frame_since_ = last_received_.load(std::memory_order_relaxed);
   }
   read_more();
 }
@@ -953,6 +976,25 @@ bool Connection::handle_data_ack(std::span<const std::byte> payload) {
 
 // --- Timers and closing --------------------------------------------------------------------
 
+std::size_t Connection::unread_bytes() {
+  int n = 0;
+  if (::ioctl(socket_.native_handle(), FIONREAD, &n) != 0 || n < 0) return 0;
+  return static_cast<std::size_t>(n);
+}
+
+bool Connection::peer_hung_up_unread() {
+  // Cheap while the peer is heard from (its heartbeats come every heartbeat_interval).
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_received_.load(std::memory_order_relaxed) < options_.heartbeat_timeout &&
+      now >= suspect_until_.load(std::memory_order_relaxed)) {
+    return false;
+  }
+  pollfd p{};
+  p.fd = socket_.native_handle();
+  p.events = POLLRDHUP;
+  return ::poll(&p, 1, 0) == 1 && (p.revents & (POLLRDHUP | POLLHUP | POLLERR)) != 0;
+}
+
 void Connection::arm_timer() {
   const auto delay = state_.load() == State::handshaking
                          ? options_.handshake_timeout
@@ -979,9 +1021,15 @@ void Connection::on_timer() {
       }
       break;
     case State::open: {
-      const auto silent =
-          std::chrono::duration_cast<std::chrono::milliseconds>(now - last_received_);
-      if (silent >= options_.heartbeat_timeout) {
+      const auto silent = std::chrono::duration_cast<std::chrono::milliseconds>(
+          now - last_received_.load(std::memory_order_relaxed));
+      if (silent < options_.heartbeat_timeout) {
+        late_read_grace_ = false;
+      } else if (!late_read_grace_ && unread_bytes() > 0) {
+        // Not silence: the peer's bytes wait in the socket because this process did not run
+        // (stopped, or starved). They are read first; what they say decides.
+        late_read_grace_ = true;
+      } else {
         fail(ErrorKind::disconnected,
              fmt::format("heartbeat timeout: nothing heard from {} for {} ms", describe(),
                          silent.count()));

@@ -237,6 +237,12 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   static std::atomic<std::uint64_t> next_id_;
 
   std::shared_ptr<asio::io_context> io_;  // declared first: outlives the socket and timer
+  // Bytes received by the kernel and not yet read (0 when it cannot tell).
+  std::size_t unread_bytes();
+  // Whether the peer has been silent past the heartbeat timeout and the socket says it hung up
+  // (a FIN or an error not read yet): after this process was stopped, say. Any thread.
+  bool peer_hung_up_unread();
+
   asio::ip::tcp::socket socket_;
   asio::steady_timer timer_;
   ConnectionRole role_;
@@ -252,8 +258,14 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::string remote_ip_;
   std::shared_ptr<detail::TransportLimits> limits_;
   std::atomic<State> state_{State::handshaking};
-  std::chrono::steady_clock::time_point last_received_;
+  // When bytes last came from the peer; read by senders on any thread.
+  std::atomic<std::chrono::steady_clock::time_point> last_received_;
+  // Until then a send checks the socket for a hang-up (bytes came after a long silence).
+  std::atomic<std::chrono::steady_clock::time_point> suspect_until_{};
   std::chrono::steady_clock::time_point opened_at_;
+  // The heartbeat timeout found bytes waiting unread (this process was stopped or starved):
+  // they get one heartbeat interval to be read before the silence counts.
+  bool late_read_grace_ = false;
   bool close_after_flush_ = false;
   bool was_open_ = false;
 

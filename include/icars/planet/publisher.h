@@ -12,12 +12,23 @@
 // A slow or dead subscriber never stalls the others. Policy: each subscriber may have at most
 // `max_backlog_bytes` accepted by its connection and not yet written to the socket; while it is
 // over that limit, events for it are dropped (and counted), the others still get every event.
-// A subscriber that has been over the limit for `stall_timeout`, or whose connection closed, is
-// unsubscribed. Delivery is at most once and in publish order per subscriber.
+// A subscriber that has been over the limit for `stall_timeout` is unsubscribed.
+//
+// A subscriber whose connection closed lapses: it is unsubscribed, but for `hold_for` the
+// publisher keeps the events published meanwhile for it (at most `max_held` events and
+// `max_backlog_bytes` bytes; past that the oldest go). When the same listener subscribes again
+// in that time — the same path, from the endpoint with the same name (PUN) and principal, as a
+// server does when its link to this process comes back — it first gets the held events, in
+// order, then the new ones. So an event published while the link was down (a voice command
+// while a device manager was stopped, say) is not lost; one already written to the socket when
+// the link broke is not sent again (delivery is at most once per event). A subscriber reached
+// through a reconnecting link holds its events the same way while the link is down and gets
+// them with the next event after it is back. Delivery is in publish order per subscriber.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -31,6 +42,9 @@ struct PublisherOptions {
   std::size_t max_backlog_bytes = 1u << 20;        // per subscriber: unwritten bytes before drops
   std::chrono::milliseconds stall_timeout{10000};  // over the backlog this long: unsubscribed
   std::size_t max_subscribers = 1024;  // more subscribe() calls fail with Error(overloaded)
+  // A lapsed subscriber's events are kept this long for its return (zero: not at all).
+  std::chrono::milliseconds hold_for{60000};
+  std::size_t max_held = 256;  // events kept per lapsed subscriber; beyond it the oldest go
 };
 
 struct SubscriberInfo {
@@ -39,6 +53,8 @@ struct SubscriberInfo {
   std::string path;
   std::uint64_t delivered = 0;
   std::uint64_t dropped = 0;
+  std::size_t held = 0;        // events kept for it while its link is down
+  std::uint64_t replayed = 0;  // held events delivered after its link came back
 };
 
 namespace detail {
@@ -53,18 +69,37 @@ class FanOut {
   bool unsubscribe(const Link& link, const std::string& path);
   // `arguments` is the argument count byte followed by the tagged arguments.
   std::size_t publish(std::span<const std::byte> arguments);
-  std::vector<SubscriberInfo> subscribers() const;
-  std::uint64_t removed() const;  // subscribers dropped by the policy so far
+  std::vector<SubscriberInfo> subscribers() const;  // the subscribed ones
+  std::vector<SubscriberInfo> lapsed() const;       // lapsed ones still holding events
+  std::uint64_t removed() const;  // subscribers dropped by the policy (or lapsed) so far
 
  private:
+  using TimePoint = std::chrono::steady_clock::time_point;
+  struct Held {
+    TimePoint at;
+    std::vector<std::byte> arguments;
+  };
   struct Subscriber {
     SubscriberInfo info;
     std::shared_ptr<Link> link;
-    std::chrono::steady_clock::time_point over_limit_since{};
+    std::string listener;  // the listener's identity: principal, peer's PUN and path
+    TimePoint over_limit_since{};
     bool over_limit = false;
+    bool lapsed = false;
+    TimePoint lapsed_since{};
+    std::deque<Held> held;
+    std::size_t held_bytes = 0;
   };
-  bool deliver(Subscriber& s, std::span<const std::byte> arguments,
-               std::chrono::steady_clock::time_point now);
+  enum class Outcome { keep, remove, lapse };
+  Outcome deliver(Subscriber& s, std::span<const std::byte> arguments, TimePoint now);
+  // Sends one event to `s` over `connection`; false when the connection is gone.
+  bool send(Subscriber& s, Connection& connection, std::span<const std::byte> arguments);
+  void hold(Subscriber& s, std::span<const std::byte> arguments, TimePoint now);
+  // Sends `s`'s held events not older than hold_for; false when the connection went meanwhile.
+  bool replay(Subscriber& s, Connection& connection, TimePoint now);
+  void lapse(Subscriber& s, TimePoint now);
+  // Lapses subscribers whose direct connection closed and forgets lapsed ones past hold_for.
+  void sweep(TimePoint now);
 
   std::string method_;
   PublisherOptions options_;
@@ -104,6 +139,7 @@ class Publisher {
   }
 
   std::vector<SubscriberInfo> subscribers() const { return fanout_.subscribers(); }
+  std::vector<SubscriberInfo> lapsed() const { return fanout_.lapsed(); }
   std::size_t size() const { return fanout_.subscribers().size(); }
   std::uint64_t removed() const { return fanout_.removed(); }
 
