@@ -61,6 +61,8 @@ struct Step {
   std::string at;
   std::string what;  // for the log
   std::function<void(FaultProxy&)> act;
+  // For faults of the processes themselves (SIGSTOP).
+  std::function<void(planet_test::ChildProcess& mediator, planet_test::ChildProcess& devices)> on_processes = {};
 };
 
 int minutes_of(const std::string& hhmm) {
@@ -126,7 +128,8 @@ Outcome run_with_faults(const std::string& until, const std::vector<Step>& steps
     const double sim_seconds = seconds_of(step.at) - kHouseStartMinute * 60.0;
     const auto due = t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(sim_seconds / kSpeedup));
     drain_devices(due);
-    step.act(proxy);
+    if (step.act) step.act(proxy);
+    if (step.on_processes) step.on_processes(mediator, devices);
     out.log.push_back(step.at + " " + step.what);
   }
   // The mediator stops by itself at `until`; it must exit within a bound.
@@ -331,4 +334,38 @@ TEST(IcarsFaults, TheNightSurvivesRepeatedCutsAndTruncations) {
       << "the patrol never got going";
   EXPECT_GE(o.connections, 8u);
   EXPECT_GT(l.acknowledged, 5);
+}
+
+// A voice command while a process is stopped (SIGSTOP) for 15 s, longer than the heartbeat
+// timeout, so the link is dropped and made again: stopped device manager (the microphone's
+// sounds are published when it runs again, into a link the mediator has closed) or stopped
+// mediator (the manager's side drops the link; what it publishes meanwhile is held for the
+// mediator's re-subscription). Each of the five sentences the user says is heard, once.
+TEST(IcarsFaults, EveryVoiceCommandIsHeardAcrossAFifteenSecondStop) {
+  for (const bool stop_mediator : {false, true}) {
+    const std::string who = stop_mediator ? "mediator" : "device manager";
+    SCOPED_TRACE("stopped: " + who);
+    const std::vector<Step> steps = {
+        {"18:13:30", "SIGSTOP the " + who + " for 15 s", nullptr,
+         [stop_mediator](planet_test::ChildProcess& mediator, planet_test::ChildProcess& devices) {
+           auto& stopped = stop_mediator ? mediator : devices;
+           stopped.freeze();
+           std::this_thread::sleep_for(15s);  // the fault itself: 150 simulated minutes
+           stopped.thaw();
+         }},
+    };
+    const auto o = run_with_faults("21:30", steps);
+    expect_clean_exit(o);
+    const auto l = check_exactly_once(o);
+    report(stop_mediator ? "stopped mediator" : "stopped device manager", o, l);
+    std::vector<std::string> heard;
+    std::string records;
+    for (const auto& j : o.trace) {
+      if (str(j, "kind") == "speech") heard.push_back(str(j, "words"));
+      if (str(j, "kind") == "speech" || str(j, "kind") == "device") records += j.dump() + "\n";
+    }
+    const std::vector<std::string> said = {"turn on the TV", "channel 5", "volume up", "play music", "stop"};
+    EXPECT_EQ(heard, said) << "every sentence heard once, in order:\n" << records;
+    EXPECT_GE(o.registrations, 2u) << "the link was dropped and the devices registered again";
+  }
 }

@@ -360,6 +360,41 @@ void Communicator::sweep_deadlines() {
 // --- Incoming messages ---------------------------------------------------------------------
 
 void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) {
+  // Behind a large NOTIFY of the same connection still on the bulk thread, a NOTIFY waits its
+  // turn there: one-way messages (a publisher's events) are handled in the order they came.
+  // Calls are not held back (a small call is answered while a servant works on a large one).
+  if (bulk_notifies_.load(std::memory_order_acquire) != 0 && !m.empty() &&
+      static_cast<RmiCode>(m[0]) == RmiCode::notify) {
+    std::unique_lock lock(bulk_mutex_);
+    if (bulk_ && bulk_pending_.contains(c.get())) {
+      post_bulk(lock, c, std::vector<std::byte>(m.begin(), m.end()), true);
+      return;
+    }
+  }
+  handle_message(c, m);
+}
+
+void Communicator::post_bulk(std::unique_lock<std::mutex>& lock, const std::shared_ptr<Connection>& c,
+                             std::vector<std::byte> message, bool notify) {
+  if (!bulk_) bulk_ = std::make_unique<asio::thread_pool>(1);
+  if (notify) {
+    ++bulk_pending_[c.get()];
+    bulk_notifies_.fetch_add(1, std::memory_order_acq_rel);
+  }
+  asio::post(*bulk_, [this, c, notify, message = std::move(message)]() mutable {
+    handle_message(c, message);
+    detail::give_buffer(std::move(message));
+    if (!notify) return;
+    std::lock_guard done(bulk_mutex_);
+    if (auto it = bulk_pending_.find(c.get()); it != bulk_pending_.end() && --it->second == 0) {
+      bulk_pending_.erase(it);
+    }
+    bulk_notifies_.fetch_sub(1, std::memory_order_acq_rel);
+  });
+  (void)lock;
+}
+
+void Communicator::handle_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) {
   Reader r(m);
   std::uint32_t request_id = 0;
   RmiCode code{};
@@ -411,16 +446,11 @@ void Communicator::on_large_message(const std::shared_ptr<Connection>& c,
                                     std::vector<std::vector<std::byte>> blocks) {
   const auto code = blocks.front().empty() ? RmiCode{} : static_cast<RmiCode>(blocks.front()[0]);
   if (code != RmiCode::call && code != RmiCode::notify && code != RmiCode::reply) {
-    on_message(c, join(std::move(blocks)));  // anything else keeps its place on the io thread
+    handle_message(c, join(std::move(blocks)));  // anything else keeps its place on the io thread
     return;
   }
   std::unique_lock lock(bulk_mutex_);
-  if (!bulk_) bulk_ = std::make_unique<asio::thread_pool>(1);
-  asio::post(*bulk_, [this, c, blocks = std::move(blocks)]() mutable {
-    std::vector<std::byte> message = join(std::move(blocks));
-    on_message(c, message);
-    detail::give_buffer(std::move(message));
-  });
+  post_bulk(lock, c, join(std::move(blocks)), code == RmiCode::notify);
 }
 
 void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway) {

@@ -91,6 +91,7 @@ struct Connection::Outgoing {
   std::uint32_t next_frame = 0;
   std::uint32_t credit = kWindowFrames;  // frames that may be sent before the next DATA_ACK
   bool aborted = false;  // refused by the peer: only an empty final frame is still sent
+  bool in_order = false;  // starts after the earlier in_order messages are written whole
   SendHandler on_sent;
   // Since when the message has had frames left and no credit (waiting for a DATA_ACK).
   std::optional<std::chrono::steady_clock::time_point> starved_since;
@@ -307,7 +308,7 @@ ConnectionStats Connection::stats() const {
 
 // --- Sending -------------------------------------------------------------------------------
 
-void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
+void Connection::send(std::vector<std::byte> message, SendHandler on_sent, bool in_order) {
   std::unique_lock lock(send_mutex_);
   if (!send_open_ || state_.load() != State::open) {
     throw Error(ErrorKind::disconnected, fmt::format("connection to {} is not open", remote_address_));
@@ -334,6 +335,7 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent) {
   if (next_msg_no_ == 0) next_msg_no_ = 1;
   msg.payload = std::move(message);
   msg.on_sent = std::move(on_sent);
+  msg.in_order = in_order;
   queued_bytes_ += msg.payload.size();
   ++stats_.messages_sent;
 
@@ -445,10 +447,18 @@ void Connection::write_batch() {
   bool progress = true;
   while (progress && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames) {
     progress = false;
+    bool in_order_pending = false;  // an earlier in_order message has frames left
     for (auto it = messages_.begin();
          it != messages_.end() && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames;) {
       Outgoing& m = *it;
       const bool single_frame = m.payload.size() <= kMaxFramePayload;
+      if (m.in_order) {
+        if (in_order_pending) {
+          ++it;
+          continue;
+        }
+        in_order_pending = true;  // until its final frame goes, below
+      }
       if ((m.credit == 0 && !m.aborted) ||
           (m.next_frame == 0 && !single_frame && in_progress >= kMaxInterleavedMessages)) {
         ++it;
@@ -474,6 +484,7 @@ void Connection::write_batch() {
       ++batch_frames_;
       progress = true;
       if (h.final) {
+        if (m.in_order) in_order_pending = false;
         if (m.next_frame > 1 && !single_frame) --in_progress;
         (m.aborted ? retired_ : batch_done_).push_back(std::move(m));
         it = messages_.erase(it);

@@ -194,7 +194,7 @@ bool FanOut::send(Subscriber& s, Connection& connection, std::span<const std::by
   w.str(method_);
   w.raw(arguments);
   try {
-    connection.send(std::move(message));
+    connection.send(std::move(message), {}, /*in_order=*/true);
     ++s.info.delivered;
   } catch (const Error& e) {
     if (e.kind() == ErrorKind::disconnected) return false;

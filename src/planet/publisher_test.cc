@@ -321,6 +321,29 @@ TEST(Publisher, HeldEventsAreBoundedAndCanBeTurnedOff) {
   }
 }
 
+// A burst of events of very different sizes (one frame, several interleavable frames, several
+// MiB handled on the receiver's bulk thread) arrives in publish order.
+TEST(Publisher, EventsOfMixedSizesArriveInPublishOrder) {
+  CommunicatorOptions options;
+  options.connection.send_queue_limit = 64u << 20;
+  Communicator publisher_side(options);
+  PublisherOptions policy;
+  policy.max_backlog_bytes = 64u << 20;  // the whole burst is queued: none is dropped
+  Publisher<Tick> ticks(TickListener::on_tick, policy);
+  serve_ticks(publisher_side, ticks);
+  const auto port = publisher_side.listen("127.0.0.1", 0);
+  TickSubscriber listener("listener");
+  listener.subscribe(port);
+  constexpr std::int64_t kEvents = 120;
+  for (std::int64_t i = 0; i < kEvents; ++i) {
+    const std::size_t size = i % 40 == 7 ? (2u << 20) : i % 3 == 0 ? 40000 : i % 3 == 1 ? 10 : 20000;
+    ticks.publish(tick(i, size));
+  }
+  ASSERT_TRUE(planet_test::wait_until([&] { return listener.received().size() == kEvents; }, 60s))
+      << listener.received().size() << " received, dropped " << ticks.subscribers().front().dropped;
+  EXPECT_EQ(listener.received(), range(0, kEvents));
+}
+
 // The publisher's process is stopped (SIGSTOP) longer than the heartbeat timeout: the listener's
 // side drops the link and reconnects. The ticks the publisher sends when it runs again, before
 // it has read that its link is gone, are held, and delivered once the listener subscribes

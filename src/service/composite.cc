@@ -23,29 +23,108 @@ SpeechSensor::~SpeechSensor() {
 
 void SpeechSensor::update_availability() {
   set_available(sound_->available() && recognizer_->available());
+  if (recognizer_->available()) retry_waiting();
 }
 
 void SpeechSensor::on_sound(const home::SoundEvent& e) {
   if (e.audio.bytes.empty()) return;
-  SpeechEvent speech;
-  speech.direction = e.direction;
-  speech.room = e.room;
-  speech.device = e.device;
-  speech.time_ms = e.time_ms;
+  retry_waiting();  // what waited goes first
+  Heard h;
+  h.audio = e.audio;
+  h.speech.direction = e.direction;
+  h.speech.room = e.room;
+  h.speech.device = e.device;
+  h.speech.time_ms = e.time_ms;
+  h.at = std::chrono::steady_clock::now();
+  {
+    std::lock_guard lock(mutex_);
+    h.seq = next_seq_++;
+  }
+  recognize(std::move(h));
+}
+
+void SpeechSensor::recognize(Heard h) {
+  auto audio = h.audio;
   recognizer_->proxy().recognize_async(
-      e.audio, [weak = weak_from_this(), speech = std::move(speech)](
-                   std::exception_ptr error, home::Recognition result) mutable {
+      audio, [weak = weak_from_this(), h = std::move(h)](std::exception_ptr error,
+                                                         home::Recognition result) mutable {
         auto self = std::static_pointer_cast<SpeechSensor>(weak.lock());
         if (!self) return;
         if (error) {
-          ++self->rejected_;  // not speech, or the recognizer is gone: nothing to publish
+          // Not speech (NotRecognized) is an answer; a recognizer out of reach is not.
+          bool unreachable = false;
+          try {
+            std::rethrow_exception(error);
+          } catch (const planet::Error& e) {
+            unreachable = e.kind() == planet::ErrorKind::disconnected ||
+                          e.kind() == planet::ErrorKind::timeout ||
+                          e.kind() == planet::ErrorKind::overloaded;
+          } catch (...) {
+          }
+          const auto seq = h.seq;
+          if (!unreachable || !self->wait_for_recognizer(std::move(h))) {
+            ++self->rejected_;
+            self->settle(seq, std::nullopt);
+          }
           return;
         }
-        speech.text = std::move(result.text);
-        speech.confidence = result.confidence;
+        h.speech.text = std::move(result.text);
+        h.speech.confidence = result.confidence;
         ++self->recognized_;
-        self->events_.notify(speech);
+        self->settle(h.seq, std::move(h.speech));
+        self->retry_waiting();  // it is reachable: what waited for it need not wait longer
       });
+}
+
+bool SpeechSensor::wait_for_recognizer(Heard h) {
+  if (std::chrono::steady_clock::now() - h.at > kMaxWait) return false;
+  // The recognizer may be back already (its watcher fired before this failure came): once.
+  if (!h.retried_at_once && recognizer_->available()) {
+    h.retried_at_once = true;
+    ++retried_;
+    recognize(std::move(h));
+    return true;
+  }
+  std::lock_guard lock(mutex_);
+  if (waiting_.size() >= kMaxWaiting) return false;
+  waiting_.push_back(std::move(h));
+  return true;
+}
+
+std::size_t SpeechSensor::waiting() const {
+  std::lock_guard lock(mutex_);
+  return waiting_.size();
+}
+
+void SpeechSensor::retry_waiting() {
+  std::deque<Heard> again;
+  {
+    std::lock_guard lock(mutex_);
+    again.swap(waiting_);
+  }
+  for (auto& h : again) {
+    if (std::chrono::steady_clock::now() - h.at > kMaxWait) {
+      ++rejected_;
+      settle(h.seq, std::nullopt);
+      continue;
+    }
+    ++retried_;
+    recognize(std::move(h));
+  }
+}
+
+void SpeechSensor::settle(std::uint64_t seq, std::optional<SpeechEvent> speech) {
+  std::lock_guard deliver(deliver_mutex_);
+  std::vector<SpeechEvent> ready;
+  {
+    std::lock_guard lock(mutex_);
+    settled_.emplace(seq, std::move(speech));
+    for (auto it = settled_.begin(); it != settled_.end() && it->first == deliver_seq_;
+         it = settled_.erase(it), ++deliver_seq_) {
+      if (it->second) ready.push_back(std::move(*it->second));
+    }
+  }
+  for (const auto& e : ready) events_.notify(e);
 }
 
 // --- CameraFactory ---------------------------------------------------------------------------

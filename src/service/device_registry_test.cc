@@ -1,11 +1,15 @@
 // The Service Framework over real PLANET connections: a device manager registers devices, SF
 // creates an adaptor service per capability, discovery finds them by type and attributes,
-// SpeechSensor composes a microphone with a speech recognizer, and services follow their
-// device's connection: unavailable when it drops, back (same objects) when it returns.
+// SpeechSensor composes a microphone with a speech recognizer (what it hears while the recognizer
+// is out of reach is recognized when it is back, in order), and services follow their device's
+// connection: unavailable when it drops, back (same objects) when it returns.
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <future>
+#include <mutex>
+#include <string>
+#include <vector>
 
 #include "child_process.h"
 #include "icars/device/device_manager.h"
@@ -149,6 +153,70 @@ TEST_F(SF, SpeechSensorTurnsSoundIntoRecognizedSpeech) {
   EXPECT_EQ(e.room, "living_room");
   EXPECT_DOUBLE_EQ(e.direction, 1.5);
   EXPECT_DOUBLE_EQ(e.confidence, 0.9);
+}
+
+// The speech engine's device manager goes away while the user speaks: the three sentences wait
+// for it and are recognized, in the order they were said, when it registers again; what is
+// said afterwards follows them.
+TEST_F(SF, SpeechHeardWhileTheRecognizerIsAwayIsRecognizedInOrderWhenItIsBack) {
+  struct EngineSide {
+    p::Communicator communicator;
+    device::DeviceManager manager{communicator};
+    explicit EngineSide(std::uint16_t port) {
+      auto speech = std::make_shared<device::Device>("speech_engine", "SpeechEngine");
+      speech->add("speech_recognizer", std::make_shared<FakeRecognizer>());
+      manager.add(speech);
+      manager.connect("127.0.0.1", port);
+    }
+  };
+  struct MicSide {
+    p::Communicator communicator;
+    device::DeviceManager manager{communicator};
+    std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>();
+    explicit MicSide(std::uint16_t port) {
+      auto robot_mic = std::make_shared<device::Device>("robot1_mic", "Microphone", "", "robot1");
+      robot_mic->add("sound_sensor", mic);
+      manager.add(robot_mic);
+      manager.connect("127.0.0.1", port);
+    }
+  };
+  MicSide microphone(port_);
+  auto engine = std::make_unique<EngineSide>(port_);
+  ASSERT_TRUE(microphone.manager.wait_registered(1, 20s));
+  ASSERT_TRUE(engine->manager.wait_registered(1, 20s));
+  std::shared_ptr<SpeechSensor> speech;
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    speech = container_.find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor").available());
+    return speech != nullptr;
+  }));
+  std::mutex mutex;
+  std::vector<std::string> heard;
+  speech->subscribe([&](const SpeechEvent& e) {
+    std::lock_guard lock(mutex);
+    heard.push_back(e.text);
+  });
+  auto so_far = [&] {
+    std::lock_guard lock(mutex);
+    return heard;
+  };
+  ASSERT_TRUE(planet_test::wait_until([&] { return microphone.mic->subscribers() == 1; }));
+  microphone.mic->hear("turn on the TV");
+  ASSERT_TRUE(planet_test::wait_until([&] { return so_far().size() == 1; }));
+
+  engine.reset();  // the recognizer goes away
+  ASSERT_TRUE(planet_test::wait_until([&] { return !speech->available(); }));
+  for (const char* text : {"channel 5", "volume up", "play music"}) microphone.mic->hear(text);
+  ASSERT_TRUE(planet_test::wait_until([&] { return speech->waiting() == 3; }));
+  EXPECT_EQ(so_far().size(), 1u);
+
+  engine = std::make_unique<EngineSide>(port_);  // and comes back
+  ASSERT_TRUE(engine->manager.wait_registered(1, 20s));
+  ASSERT_TRUE(planet_test::wait_until([&] { return so_far().size() == 4; }));
+  microphone.mic->hear("stop");
+  ASSERT_TRUE(planet_test::wait_until([&] { return so_far().size() == 5; }));
+  EXPECT_EQ(so_far(), (std::vector<std::string>{"turn on the TV", "channel 5", "volume up", "play music", "stop"}));
+  EXPECT_EQ(speech->rejected(), 0u);
+  EXPECT_GE(speech->retried(), 3u);
 }
 
 TEST_F(SF, ServicesFollowTheirDevicesConnection) {

@@ -7,12 +7,15 @@
 // completions without their own executor) runs on its io thread, which must never block —
 // except for messages larger than 1 MiB: those CALLs, NOTIFYs and REPLYs are decoded and
 // dispatched on the communicator's bulk thread (started on the first one), so that copying
-// hundreds of megabytes never holds up the small calls on the same connection. A servant that
+// hundreds of megabytes never holds up the small calls on the same connection. A NOTIFY that
+// completes on a connection while a large NOTIFY of it waits on the bulk thread follows it
+// there, so one-way messages (events) are handled in the order they came. A servant that
 // takes large arguments may therefore run concurrently with the servants on the io thread.
 #pragma once
 
 #include <asio/io_context.hpp>
 #include <asio/thread_pool.hpp>
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <exception>
@@ -131,6 +134,11 @@ class Communicator final : private MessageHandler {
   };
 
   void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
+  void handle_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m);
+  // Hands `message` to the bulk thread (bulk_mutex_ held); a NOTIFY is counted in
+  // bulk_pending_ until handled.
+  void post_bulk(std::unique_lock<std::mutex>& lock, const std::shared_ptr<Connection>& c,
+                 std::vector<std::byte> message, bool notify);
   void on_large_message(const std::shared_ptr<Connection>& c,
                         std::vector<std::vector<std::byte>> blocks) override;
   void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,
@@ -178,6 +186,10 @@ class Communicator final : private MessageHandler {
 
   std::mutex bulk_mutex_;
   std::unique_ptr<asio::thread_pool> bulk_;  // large messages (on_large_message); lazily started
+  // NOTIFYs of each connection on the bulk thread, not yet handled: later NOTIFYs of that
+  // connection follow them there. bulk_notifies_ is their total, read without the lock.
+  std::unordered_map<const Connection*, std::size_t> bulk_pending_;
+  std::atomic<std::size_t> bulk_notifies_{0};
 };
 
 }  // namespace icars::planet

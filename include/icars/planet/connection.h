@@ -176,7 +176,12 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   // Queues a message. Never blocks. Throws Error(disconnected) when the connection is not open
   // and Error(overloaded) when the send queue would exceed `send_queue_limit`. `on_sent`, if
   // given, runs exactly once on the io thread. Thread-safe.
-  void send(std::vector<std::byte> message, SendHandler on_sent = {});
+  //
+  // Frames of different messages are interleaved (a large message does not hold up small ones),
+  // so messages may complete at the receiver in another order than they were sent. Messages
+  // sent `in_order` do not: one starts only when every earlier in_order message on this
+  // connection has been written whole (a publisher's events, whatever their sizes).
+  void send(std::vector<std::byte> message, SendHandler on_sent = {}, bool in_order = false);
 
   // Closes the connection; queued messages are dropped and MessageHandler::on_close runs with
   // Error(disconnected, reason). Thread-safe and idempotent.

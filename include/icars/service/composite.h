@@ -14,8 +14,11 @@
 
 #include <chrono>
 #include <cstdint>
+#include <deque>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -42,9 +45,31 @@ class SpeechSensor final : public Service {
   void unsubscribe(std::uint64_t id) { events_.remove(id); }
   std::uint64_t recognized() const { return recognized_.load(); }
   std::uint64_t rejected() const { return rejected_.load(); }
+  std::uint64_t retried() const { return retried_.load(); }
+  std::size_t waiting() const;  // sounds waiting for the recognizer to be reachable again
+
+  // Speech is delivered in the order it was heard. Sounds whose recognition failed because the
+  // recognizer could not be reached (its link dropped) are kept, at most kMaxWaiting for at
+  // most kMaxWait, and recognized again when it is reachable again; what was heard after them
+  // waits for them. Past those bounds a sound counts as rejected.
+  static constexpr std::size_t kMaxWaiting = 64;
+  static constexpr std::chrono::seconds kMaxWait{120};
 
  private:
+  struct Heard {
+    std::uint64_t seq = 0;  // in the order the sounds came
+    planet::Binary audio;
+    SpeechEvent speech;
+    std::chrono::steady_clock::time_point at;
+    bool retried_at_once = false;
+  };
   void on_sound(const home::SoundEvent& e);
+  void recognize(Heard h);
+  // Keeps `h` for the recognizer's return; false when it is too old or too many wait.
+  bool wait_for_recognizer(Heard h);
+  void retry_waiting();
+  // Records the outcome of sound `seq` (nullopt: rejected) and delivers what is in order.
+  void settle(std::uint64_t seq, std::optional<SpeechEvent> speech);
   void update_availability();
 
   std::shared_ptr<SoundSensor> sound_;
@@ -55,6 +80,13 @@ class SpeechSensor final : public Service {
   Listeners<SpeechEvent> events_;
   std::atomic<std::uint64_t> recognized_{0};
   std::atomic<std::uint64_t> rejected_{0};
+  std::atomic<std::uint64_t> retried_{0};
+  mutable std::mutex mutex_;
+  std::uint64_t next_seq_ = 0;     // the next sound's
+  std::uint64_t deliver_seq_ = 0;  // the next to deliver
+  std::map<std::uint64_t, std::optional<SpeechEvent>> settled_;  // out of order so far
+  std::deque<Heard> waiting_;
+  std::mutex deliver_mutex_;  // one deliverer at a time, so listeners see the order
 };
 
 // A shared camera: `capture` completes with the newest image no older than max_age, taking a
