@@ -252,6 +252,8 @@ TEST_F(Ownership, WhatAVanishedPrincipalRegisteredIsForgotten) {
   }  // its link closes
   ASSERT_TRUE(planet_test::wait_until([&] { return sf_.registry().registered_devices() == 0; }, 20s));
   EXPECT_TRUE(sf_.container().all().empty());
+  // The registry forgets first and tells its watchers after, so the events may still be on their way.
+  EXPECT_TRUE(planet_test::wait_until([&] { return events("DeviceForgotten").size() >= 10; }, 20s));
   EXPECT_EQ(events("DeviceLost").size(), 10u);
   EXPECT_EQ(events("DeviceForgotten").size(), 10u);
   // Forgotten ids are free again, for a principal whose entry lists them.
@@ -329,6 +331,27 @@ TEST_F(Restore, ADeviceThatKeptItsStateRaisesNothing) {
   EXPECT_TRUE(events("DeviceRestored").empty());
 }
 
+TEST_F(Restore, AManagerRestartedBeforeItsOldLinkClosedIsCheckedToo) {
+  // A manager killed and started again faster than the heartbeat timeout registers its devices
+  // over a new link while the old one still looks open: its TV lost its state all the same.
+  auto old_manager = std::make_unique<Manager>(port_, "living-room-token");
+  ASSERT_TRUE(old_manager->manager.wait_registered(1, 20s));
+  auto service = tv();
+  service->proxy().set_channel(7);
+  ASSERT_TRUE(planet_test::wait_until([&] { return service->acknowledged_state().has("channel"); }));
+  auto new_manager = std::make_unique<Manager>(port_, "living-room-token");  // the old link still open
+  ASSERT_TRUE(new_manager->manager.wait_registered(1, 20s));
+  ASSERT_TRUE(planet_test::wait_until([&] { return events("DeviceRestored").size() == 1; }, 20s));
+  EXPECT_EQ(events("DeviceRestored").front().get<std::string>("differences"), "channel 7 -> 0");
+  ASSERT_TRUE(planet_test::wait_until([&] { return new_manager->tv->now().channel == 7; }, 20s));
+  EXPECT_EQ(old_manager->tv->now().channel, 7);
+  // The old link closing now loses nothing: the devices live on the new one.
+  old_manager.reset();
+  EXPECT_EQ(service->proxy().state().channel, 7);
+  EXPECT_TRUE(service->available());
+  EXPECT_TRUE(events("DeviceLost").empty());
+}
+
 TEST(RestoreReportOnly, TellsWithoutReapplying) {
   p::Communicator server;
   RegistryOptions options;
@@ -346,6 +369,8 @@ TEST(RestoreReportOnly, TellsWithoutReapplying) {
   auto service = sf.container().find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
   service->proxy().set_power(true);
   ASSERT_TRUE(planet_test::wait_until([&] { return service->acknowledged_state().has("on"); }));
+  manager.reset();
+  ASSERT_TRUE(planet_test::wait_until([&] { return !service->available(); }));
   manager = std::make_unique<Manager>(port, "");
   ASSERT_TRUE(manager->manager.wait_registered(1, 20s));
   ASSERT_TRUE(planet_test::wait_until([&] {

@@ -124,12 +124,14 @@ void DeviceRegistry::register_device(const df::DeviceInfo& device, const planet:
       communicator_.log().info("device {} ({}) registered by {}: {} services", device.id, device.type,
                                holder_name(holder), it->second.services.size());
     } else {
-      if (it->second.connection_id != 0 && it->second.connection_id != current.connection->id()) {
+      const bool moved = it->second.connection_id != 0 && it->second.connection_id != current.connection->id();
+      if (moved) {
         // Its old link may not have closed yet (a manager restarted faster than the heartbeat
-        // timeout): the same holder's newest registration wins.
+        // timeout): the same holder's newest registration wins, and the device behind it may
+        // have lost its state just as if the old link had been seen to close.
         communicator_.log().info("device {} moved to {}", device.id, current.connection->describe());
       }
-      back = it->second.lost;
+      back = it->second.lost || moved;
       it->second.lost = false;
     }
     it->second.connection_id = current.connection->id();

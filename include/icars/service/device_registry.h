@@ -61,7 +61,7 @@ struct RegistryOptions {
 
 // What the registry tells about devices, as events (ServiceContainer::device_events):
 //   DeviceLost     device, reason            its link went down; its services are unavailable
-//   DeviceBack     device                    it registered again after a loss
+//   DeviceBack     device                    it registered again after a loss, or over a new link
 //   DeviceRestored device, capability, service, differences (text), reapplied (bool),
 //                  error (text, "" when none), and per differing value <name> (the wanted,
 //                  acknowledged value) and found_<name> (what the device had)
