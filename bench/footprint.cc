@@ -50,6 +50,7 @@
 
 #include "child_process.h"
 #include "icars/planet/communicator.h"
+#include "icars/planet/endpoint.h"
 #include "icars/sim/house.h"
 #include "icars/sim/time.h"
 
@@ -67,14 +68,6 @@ const std::string kPolicy = std::string(ICARS_POLICIES_DIR) + "/paper_home.xml";
 constexpr auto kStartBound = 60s;
 constexpr auto kSettleBound = 180s;
 
-std::pair<std::string, std::uint16_t> split_endpoint(const std::string& endpoint) {
-  const auto colon = endpoint.rfind(':');
-  if (colon == std::string::npos || colon == 0) throw std::invalid_argument("expected host:port, got " + endpoint);
-  const int port = std::stoi(endpoint.substr(colon + 1));
-  if (port <= 0 || port > 65535) throw std::invalid_argument("port out of range in " + endpoint);
-  return {endpoint.substr(0, colon), static_cast<std::uint16_t>(port)};
-}
-
 // --planet-client: the smallest PLANET process, a Communicator connected to a server.
 int planet_client(const std::string& endpoint) {
   sigset_t signals;
@@ -82,7 +75,7 @@ int planet_client(const std::string& endpoint) {
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  const auto [host, port] = split_endpoint(endpoint);
+  const auto [host, port] = icars::planet::parse_endpoint(endpoint);
   icars::planet::CommunicatorOptions options;
   options.name = "footprint";
   icars::planet::Communicator communicator(options);

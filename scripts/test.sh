@@ -9,13 +9,13 @@ jobs=$(nproc)
 # ccache keys on paths relative to the checkout, so a fresh clone reuses what an earlier one built.
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
 
-cmake --preset asan -DICARS_BUILD_EXAMPLES=ON >/dev/null
+cmake --preset asan >/dev/null
 cmake --build build/asan -j "$jobs"
 ctest --preset asan -j "$jobs"
 scripts/fuzz.sh "${ICARS_FUZZ_SECONDS:-60}"
 
 # The tests were compiled (with -Werror) and run above; the release tree builds the rest.
-cmake --preset release -DICARS_BUILD_TESTS=OFF >/dev/null
+cmake --preset release >/dev/null
 cmake --build build/release -j "$jobs"
 build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
 build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null

@@ -27,21 +27,8 @@
 #include <thread>
 
 #include "icars/device/simulated_house.h"
+#include "icars/planet/endpoint.h"
 #include "security_options.h"
-
-namespace {
-
-std::pair<std::string, std::uint16_t> split_endpoint(const std::string& endpoint) {
-  const auto colon = endpoint.rfind(':');
-  if (colon == std::string::npos || colon == 0) {
-    throw CLI::ValidationError("--server", "expected host:port, got '" + endpoint + "'");
-  }
-  const int port = std::stoi(endpoint.substr(colon + 1));
-  if (port <= 0 || port > 65535) throw CLI::ValidationError("--server", "port out of range");
-  return {endpoint.substr(0, colon), static_cast<std::uint16_t>(port)};
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"ICARS device manager for a simulated house"};
@@ -93,7 +80,14 @@ int main(int argc, char** argv) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";
     return 2;
   }
-  const auto [host, port] = split_endpoint(server);
+  icars::planet::Endpoint endpoint;
+  try {
+    endpoint = icars::planet::parse_endpoint(server);
+  } catch (const std::invalid_argument& e) {
+    std::cerr << "icars-device-manager: --server " << e.what() << "\n";
+    return 2;
+  }
+  const auto& [host, port] = endpoint;
 
   // Every line is flushed at once: the file is complete whenever the process stops.
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> effects(nullptr, &std::fclose);

@@ -680,6 +680,11 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
       const auto it = std::find_if(changes.begin(), changes.end(), [t](const Change& c) { return c.happened > t; });
       latest = std::max(latest, it == changes.end() ? SimTime::max() : it->visible);
     }
+    // The clock's manager down between the task's start and that change being seen: the
+    // mediator's time stood still, and what it did then is stamped when it was back.
+    for (const auto& o : outages) {
+      if (managers[o.manager].simulation && o.from <= latest && t - 15min <= o.to) latest = std::max(latest, o.to);
+    }
     return latest;
   };
   auto tasks = follow_tasks(trace);

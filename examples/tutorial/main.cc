@@ -2,9 +2,9 @@
 //
 //   tutorial [POLICY]     (default: cooling.xml beside this file)
 //
-// The three roles meet here: the mediating server (PLANET server + Service Framework that knows
-// the new adaptors), a device manager hosting the fan over loopback PLANET, and the behavior
-// runtime running the policy. Time is simulated and advanced by hand through a hot afternoon.
+// The three roles meet here: the mediating server (icars::server::MediatingServer, taught the new
+// behavior and adaptors), a device manager hosting the fan over loopback PLANET, and the policy
+// running on the server's behavior runtime. Time is simulated and advanced by hand through a hot afternoon.
 // It prints the timeline and exits 0 only if the fan ran while it was hot, the statechart went
 // Normal -> Cooling -> Normal, and the fan stopped again (the ctest tutorial_runs runs it).
 #include <fmt/format.h>
@@ -20,15 +20,13 @@
 
 #include "cool_down.h"
 #include "devices.h"
-#include "icars/control/collaboration.h"
 #include "icars/device/device_manager.h"
-#include "icars/service/service_framework.h"
+#include "icars/server/mediating_server.h"
 #include "services.h"
 
 namespace b = icars::behavior;
 namespace c = icars::control;
 namespace p = icars::planet;
-namespace s = icars::service;
 namespace sim = icars::sim;
 using namespace std::chrono_literals;
 
@@ -60,28 +58,26 @@ p::CommunicatorOptions quiet(std::string name) {
 int run(const std::string& policy_file) {
   spdlog::set_level(spdlog::level::warn);
 
-  // The behaviors a policy may name, and the policy, checked before anything starts.
-  b::BehaviorRegistry registry;
-  b::register_generic_behaviors(registry);  // Wait, Emit
-  tutorial::register_tutorial_behaviors(registry);
-  const auto parsed = c::parse_policy_file(policy_file, registry);  // throws PolicyError
-  for (const auto& warning : parsed.warnings)
-    std::fprintf(stderr, "%s\n", warning.to_string().c_str());
-
   sim::SimClock clock(sim::at_time(0, 12, 0));  // day 0, noon
 
+  // --- The mediating server, taught the new behavior and adaptors. ---
+  icars::server::ServerOptions options;
+  options.planet = quiet("icars");
+  b::register_generic_behaviors(options.behaviors);  // Wait, Emit
+  tutorial::register_tutorial_behaviors(options.behaviors);
+  tutorial::add_adaptors(options.adaptors);
+  // The policy, checked before anything starts.
+  const auto parsed = c::parse_policy_file(policy_file, options.behaviors);  // throws PolicyError
+  for (const auto& warning : parsed.warnings)
+    std::fprintf(stderr, "%s\n", warning.to_string().c_str());
+  icars::server::MediatingServer server(std::move(options));
+  const std::uint16_t port = server.listen();
+
   // The timeline: printed, and kept for the checks.
-  b::Trace trace;
+  b::Trace& trace = server.trace();
   b::TraceLog log;
   trace.add_sink(b::timeline_printer(stdout));
   trace.add_sink(log.sink());
-
-  // --- The mediating server: PLANET server and Service Framework, taught the new adaptors. ---
-  p::Communicator server(quiet("icars"));
-  auto adaptors = s::AdaptorFactory::house();
-  tutorial::add_adaptors(adaptors);
-  s::ServiceFramework sf(server, std::move(adaptors));
-  const std::uint16_t port = server.listen("127.0.0.1", 0);
 
   // --- The device provider: a smart fan in the living room, hosted by a device manager. ---
   p::Communicator devices(quiet("devices"));
@@ -105,15 +101,16 @@ int run(const std::string& policy_file) {
   // The thermometer's adaptor subscribes asynchronously once the device registered.
   expect(eventually([&] { return thermometer->subscribers() == 1; }),
          "the thermometer adaptor did not subscribe");
-  for (const auto& service : sf.container().all()) {
+  for (const auto& service : server.container().all()) {
     std::printf("[tutorial] service %s (%s) in the %s\n", service->id().c_str(),
                 service->type().c_str(), service->attributes().room.c_str());
   }
 
-  // --- The application: the Coordinator of the policy, on the behavior runtime. ---
-  b::Runtime runtime(clock);
-  b::Environment env{runtime, sf.container(), trace};
-  auto coordinator = c::PolicyFactory(registry).create(parsed.policy, env);
+  // --- The application: the policy's Coordinator, on the server's behavior runtime. ---
+  server.use_clock(clock);
+  server.run_policy(policy_file);
+  auto* coordinator = server.coordinator();
+  auto& runtime = *server.runtime();
 
   // Waits until the timeline shows `what`, then until the runtime has nothing left to do.
   auto wait_for = [&](const std::string& what, std::function<bool(const b::TraceRecord&)> pred) {
@@ -134,7 +131,6 @@ int run(const std::string& policy_file) {
   };
 
   // 12:00, 22 C: Normal; CoolDown's first reading makes sure the fan is off.
-  coordinator->start();
   wait_for("the fan to be off at noon", task_event("Watch", "Comfortable", "22"));
   expect(coordinator->current() == "Normal",
          "at noon the state is " + coordinator->current() + ", not Normal");
@@ -167,7 +163,7 @@ int run(const std::string& policy_file) {
   expect(fan->current_speed() == 0,
          fmt::format("at 18:01 the fan runs at {}%", fan->current_speed()));
 
-  coordinator->stop();
+  server.stop();
   std::vector<std::string> transitions;
   for (const auto& r : log.of_kind("transition")) transitions.push_back(r.text);
   expect(transitions == std::vector<std::string>{"Normal -> Cooling on TooHot",

@@ -201,10 +201,8 @@ std::string Behavior::describe(std::exception_ptr e) {
     const auto colon = type.rfind("::");
     return fmt::format("{}: {}", colon == std::string::npos ? type : type.substr(colon + 2),
                        ex.remote_message().empty() ? ex.what() : ex.remote_message());
-  } catch (const std::exception& ex) {
-    return ex.what();
   } catch (...) {
-    return "unknown error";
+    return planet::describe(std::current_exception());
   }
 }
 

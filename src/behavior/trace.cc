@@ -19,6 +19,26 @@ std::string TraceRecord::field(std::string_view name) const {
   return "";
 }
 
+std::optional<double> TraceRecord::number(std::string_view name) const {
+  for (const auto& [n, v] : fields) {
+    if (n == name) {
+      if (const auto* d = std::get_if<double>(&v)) return *d;
+      return std::nullopt;
+    }
+  }
+  return std::nullopt;
+}
+
+std::optional<bool> TraceRecord::flag(std::string_view name) const {
+  for (const auto& [n, v] : fields) {
+    if (n == name) {
+      if (const auto* b = std::get_if<bool>(&v)) return *b;
+      return std::nullopt;
+    }
+  }
+  return std::nullopt;
+}
+
 std::string TraceRecord::to_json() const {
   nlohmann::ordered_json j;
   j["t"] = time.count();

@@ -68,13 +68,10 @@ void DeviceManager::register_all(std::shared_ptr<planet::Connection> connection)
         [this, remaining, failed, id = device->id()](std::exception_ptr e) {
           if (e) {
             *failed = true;
-            try {
-              std::rethrow_exception(e);
-            } catch (const std::exception& error) {
-              communicator_.log().error("registering device {} failed: {}", id, error.what());
-              std::lock_guard lock(mutex_);
-              last_error_ = id + ": " + error.what();
-            }
+            const auto error = planet::describe(e);
+            communicator_.log().error("registering device {} failed: {}", id, error);
+            std::lock_guard lock(mutex_);
+            last_error_ = id + ": " + error;
           }
           if (--*remaining == 0 && !*failed) {
             communicator_.log().info("registered {} devices with the server", devices_.size());

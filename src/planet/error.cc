@@ -27,4 +27,15 @@ std::string_view to_string(ErrorKind kind) noexcept {
 Error::Error(ErrorKind kind, const std::string& message)
     : std::runtime_error(std::string(to_string(kind)) + ": " + message), kind_(kind), message_(message) {}
 
+std::string describe(const std::exception_ptr& error) {
+  if (!error) return {};
+  try {
+    std::rethrow_exception(error);
+  } catch (const std::exception& e) {
+    return e.what();
+  } catch (...) {
+    return "unknown error";
+  }
+}
+
 }  // namespace icars::planet

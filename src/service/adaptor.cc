@@ -65,11 +65,7 @@ void Adaptor::bind(planet::Communicator& communicator, const std::shared_ptr<pla
 
 void Adaptor::log_failure(planet::Communicator& communicator, std::string_view what,
                           std::exception_ptr error) const {
-  try {
-    std::rethrow_exception(error);
-  } catch (const std::exception& e) {
-    communicator.log().warn("service {} {}: {}", id(), what, e.what());
-  }
+  communicator.log().warn("service {} {}: {}", id(), what, planet::describe(error));
 }
 
 void Adaptor::set_call_observer(std::shared_ptr<planet::CallObserver> observer) {

@@ -154,14 +154,7 @@ void DeviceRegistry::came_back(const std::string& device_id,
                                               device_id](Restoration r) {
       if (!alive.lock()) return;
       if (r.differences.empty() && !r.error) return;  // it kept its state
-      std::string error;
-      if (r.error) {
-        try {
-          std::rethrow_exception(r.error);
-        } catch (const std::exception& e) {
-          error = e.what();
-        }
-      }
+      const std::string error = planet::describe(r.error);
       const auto text = describe(r.differences);
       communicator_.log().warn("device {} came back with another state ({}){}{}", device_id, text,
                                r.reapplied ? "; re-applied the acknowledged state" : "",

@@ -11,6 +11,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
 #include <variant>
@@ -35,6 +36,9 @@ struct TraceRecord {
   }
   // The field's value as text ("" when absent).
   std::string field(std::string_view name) const;
+  // The field's value when it is a number / a flag (nullopt when absent or of another kind).
+  std::optional<double> number(std::string_view name) const;
+  std::optional<bool> flag(std::string_view name) const;
   // {"t":..., "time":"d0 18:10:00", "kind":..., "source":..., "text":..., <fields>}
   std::string to_json() const;
 };

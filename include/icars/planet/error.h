@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <exception>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -37,5 +38,9 @@ class Error : public std::runtime_error {
   ErrorKind kind_;
   std::string message_;
 };
+
+// What went wrong, for a log line or an error message: an exception's what(), "unknown error"
+// for anything else thrown, "" for a null pointer.
+std::string describe(const std::exception_ptr& error);
 
 }  // namespace icars::planet

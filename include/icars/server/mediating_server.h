@@ -1,0 +1,122 @@
+// The mediating server of the ICARS paper (Fig. 2, 4.3): the PLANET server that device managers
+// and clients connect to, the Service Framework that turns registered devices into services, the
+// behavior runtime and the Collaboration Manager that runs a collaboration policy over them —
+// assembled around one ServerOptions. `icars run`, the tutorial plugin and the tests all use it.
+//
+//   server::ServerOptions options;
+//   options.listen = "0.0.0.0:4711";
+//   options.policy_dir = "policies";
+//   server::MediatingServer server(std::move(options));
+//   server.listen();                 // device managers may register now
+//   server.use_clock(house_clock);   // the time behaviors' timers follow
+//   server.run_policy("paper_home"); // throws control::PolicyError
+//
+// What happens is told through trace(): transitions, tasks, behaviors, service calls. Reporting
+// (a timeline, a summary, a plot) is an observer of the server (icars/report/), not part of it.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "icars/behavior/registry.h"
+#include "icars/behavior/runtime.h"
+#include "icars/behavior/trace.h"
+#include "icars/control/collaboration.h"
+#include "icars/planet/communicator.h"
+#include "icars/planet/endpoint.h"
+#include "icars/planet/security.h"
+#include "icars/service/service_framework.h"
+
+namespace icars::server {
+
+struct ServerOptions {
+  ServerOptions() { planet.name = "icars"; }
+
+  std::string listen = "127.0.0.1:0";  // host:port; port 0 lets the system choose
+  // The PLANET server: `tls` (docs/security.md), `access` (who may connect and call what; null:
+  // anyone, so listen on loopback only), `logger`, limits and timeouts (docs/protocol.md).
+  planet::CommunicatorOptions planet;
+  // The adaptor services made for registered devices' capabilities, and the registry's limits.
+  service::AdaptorFactory adaptors = service::AdaptorFactory::house();
+  service::RegistryOptions registry;
+  // The behavior types policies may name.
+  behavior::BehaviorRegistry behaviors;
+  // Where policies are found by name (<dir>/<name>.xml); a path with '/' or .xml is used as is.
+  std::string policy_dir = ".";
+};
+
+// What reload_access() did.
+struct AccessReload {
+  std::size_t principals = 0;           // in the new policy
+  std::vector<std::string> changed;     // removed or changed principals (their links were closed)
+  std::size_t forgotten_devices = 0;    // devices the removed principals held
+};
+
+class MediatingServer {
+ public:
+  // Checks the options and builds the PLANET server and the Service Framework. Throws
+  // std::invalid_argument for a bad listen endpoint and std::runtime_error for TLS files that
+  // cannot be used; nothing listens yet.
+  explicit MediatingServer(ServerOptions options);
+  // Stops the running policy and lets its behaviors finish, then closes every connection.
+  ~MediatingServer();
+  MediatingServer(const MediatingServer&) = delete;
+  MediatingServer& operator=(const MediatingServer&) = delete;
+
+  // Starts accepting device managers and clients; returns the bound port. Throws when the
+  // endpoint cannot be bound (in use, no such address).
+  std::uint16_t listen();
+  // The endpoint listened on, with the bound port (port 0 before listen()).
+  planet::Endpoint endpoint() const;
+
+  planet::Communicator& communicator() { return *communicator_; }
+  service::ServiceFramework& services() { return *framework_; }
+  service::ServiceContainer& container() { return framework_->container(); }
+  behavior::Trace& trace() { return trace_; }
+  const behavior::BehaviorRegistry& behaviors() const { return options_.behaviors; }
+  const control::PolicyRepository& policies() const { return repository_; }
+
+  // The clock that behaviors' timers follow (the simulated house's, or one following a remote
+  // house's time). Needed before the first run_policy(); the clock must outlive the server, or
+  // stop() must have returned before it goes.
+  void use_clock(sim::SimClock& clock);
+  // The behavior runtime (null before the first run_policy()).
+  behavior::Runtime* runtime() { return runtime_.get(); }
+
+  // Loads, checks and starts a policy, replacing the one running. Throws control::PolicyError
+  // (the running policy, if any, keeps running) and std::logic_error without a clock.
+  control::ParsedPolicy run_policy(const std::string& name);
+  // Stops the running policy and waits up to `drain` for its behaviors to finish.
+  void stop_policy(std::chrono::milliseconds drain = std::chrono::seconds(5));
+  // Stops the running policy, ends the behavior runtime and lets go of the clock; the server
+  // keeps serving devices and clients. A later run_policy() needs use_clock() again.
+  void stop(std::chrono::milliseconds drain = std::chrono::seconds(5));
+  // The running policy's Coordinator (null when none runs).
+  control::Coordinator* coordinator();
+
+  // Puts another access policy in force: principals that `next` removes or changes lose their
+  // links, and the devices of those removed are forgotten. Needs a server built with an access
+  // policy (std::logic_error otherwise). Thread-safe.
+  AccessReload reload_access(std::shared_ptr<const planet::AccessPolicy> next);
+  std::shared_ptr<const planet::AccessPolicy> access() const;
+
+ private:
+  ServerOptions options_;
+  planet::Endpoint endpoint_;
+  control::PolicyRepository repository_;
+  behavior::Trace trace_;
+  std::unique_ptr<planet::Communicator> communicator_;
+  std::unique_ptr<service::ServiceFramework> framework_;
+  sim::SimClock* clock_ = nullptr;
+  std::unique_ptr<behavior::Runtime> runtime_;
+  std::unique_ptr<behavior::Environment> environment_;
+  std::unique_ptr<control::CollaborationManager> manager_;
+  mutable std::mutex access_mutex_;
+  std::shared_ptr<const planet::AccessPolicy> access_;
+};
+
+}  // namespace icars::server

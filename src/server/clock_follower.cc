@@ -1,0 +1,34 @@
+#include "icars/server/clock_follower.h"
+
+#include "icars/service/adaptor.h"
+
+namespace icars::server {
+
+ClockFollower::ClockFollower(sim::SimClock& clock, service::ServiceContainer& services,
+                             std::chrono::milliseconds every)
+    : clock_(clock), services_(services), every_(every) {
+  thread_ = std::thread([this] { run(); });
+}
+
+ClockFollower::~ClockFollower() {
+  stop_ = true;
+  thread_.join();
+}
+
+void ClockFollower::run() {
+  while (!stop_) {
+    const auto query = service::ServiceQuery::of_type("Simulation").available();
+    if (auto simulation = services_.find_first<service::SimulationService>(query)) {
+      try {
+        const sim::SimTime remote(simulation->proxy().now_ms());
+        if (remote > clock_.now()) clock_.advance_to(remote);
+        following_ = true;
+      } catch (const std::exception&) {
+        // The device manager is restarting: keep the time we have and ask again.
+      }
+    }
+    std::this_thread::sleep_for(every_);
+  }
+}
+
+}  // namespace icars::server

@@ -1,0 +1,86 @@
+#include "icars/server/mediating_server.h"
+
+#include <stdexcept>
+
+namespace icars::server {
+
+MediatingServer::MediatingServer(ServerOptions options)
+    : options_(std::move(options)),
+      endpoint_(planet::parse_endpoint(options_.listen, /*allow_any_port=*/true)),
+      repository_(options_.policy_dir),
+      communicator_(std::make_unique<planet::Communicator>(options_.planet)),
+      framework_(std::make_unique<service::ServiceFramework>(*communicator_, options_.adaptors,
+                                                             options_.registry)),
+      access_(options_.planet.access) {}
+
+MediatingServer::~MediatingServer() {
+  // Behaviors first (they call services), then the Service Framework (it stops taking
+  // registrations), then the PLANET server with every connection.
+  stop();
+  framework_.reset();
+  communicator_.reset();
+}
+
+std::uint16_t MediatingServer::listen() {
+  endpoint_.port = communicator_->listen(endpoint_.host, endpoint_.port);
+  return endpoint_.port;
+}
+
+planet::Endpoint MediatingServer::endpoint() const { return endpoint_; }
+
+void MediatingServer::use_clock(sim::SimClock& clock) {
+  if (runtime_ && &runtime_->clock() != &clock) {
+    throw std::logic_error("the mediating server's behaviors already run on another clock");
+  }
+  clock_ = &clock;
+}
+
+control::ParsedPolicy MediatingServer::run_policy(const std::string& name) {
+  if (!manager_) {
+    if (!clock_) throw std::logic_error("the mediating server has no clock: call use_clock() first");
+    runtime_ = std::make_unique<behavior::Runtime>(*clock_);
+    environment_ = std::make_unique<behavior::Environment>(
+        behavior::Environment{*runtime_, framework_->container(), trace_});
+    manager_ = std::make_unique<control::CollaborationManager>(repository_, options_.behaviors, *environment_);
+  }
+  return manager_->run(name);
+}
+
+void MediatingServer::stop_policy(std::chrono::milliseconds drain) {
+  if (!manager_) return;
+  manager_->stop();
+  runtime_->drain(drain);
+}
+
+void MediatingServer::stop(std::chrono::milliseconds drain) {
+  stop_policy(drain);
+  manager_.reset();
+  environment_.reset();
+  runtime_.reset();
+  clock_ = nullptr;
+}
+
+control::Coordinator* MediatingServer::coordinator() { return manager_ ? manager_->coordinator() : nullptr; }
+
+AccessReload MediatingServer::reload_access(std::shared_ptr<const planet::AccessPolicy> next) {
+  if (!next) throw std::invalid_argument("no access policy to put in force");
+  std::lock_guard lock(access_mutex_);
+  if (!access_) {
+    throw std::logic_error("the mediating server was started without an access policy; it admits anyone");
+  }
+  AccessReload result;
+  result.changed = planet::reload_access_policy(communicator_->connections(), *access_, next);
+  for (const auto& name : result.changed) {
+    if (!next->find(name)) result.forgotten_devices += framework_->registry().forget_holder(name);
+  }
+  result.principals = next->principals().size();
+  access_ = std::move(next);
+  return result;
+}
+
+std::shared_ptr<const planet::AccessPolicy> MediatingServer::access() const {
+  std::lock_guard lock(access_mutex_);
+  return access_;
+}
+
+}  // namespace icars::server
