@@ -47,12 +47,6 @@ using namespace icars::coros;
 using namespace std::chrono_literals;
 using Ms = std::chrono::duration<double, std::milli>;
 
-std::uint16_t free_udp_port() {
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
-  return s.local_endpoint().port();
-}
-
 using SteadyTime = std::chrono::steady_clock::time_point;
 
 // The neighbour-table sizes the agents report (the DiscoveryOperator emits neighbor_joined and

@@ -386,26 +386,6 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
   return plan;
 }
 
-std::uint16_t free_udp_port() {
-  const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
-  if (fd < 0)
-    throw std::runtime_error(std::string("cannot open a UDP socket: ") + std::strerror(errno));
-  sockaddr_in address{};
-  address.sin_family = AF_INET;
-  address.sin_addr.s_addr = htonl(INADDR_ANY);
-  address.sin_port = 0;
-  socklen_t length = sizeof address;
-  // NOLINTNEXTLINE(cppcoreguidelines-pro-type-reinterpret-cast): the sockets API
-  auto* generic = reinterpret_cast<sockaddr*>(&address);
-  if (::bind(fd, generic, sizeof address) != 0 || ::getsockname(fd, generic, &length) != 0) {
-    const int error = errno;
-    ::close(fd);
-    throw std::runtime_error(std::string("cannot find a free UDP port: ") + std::strerror(error));
-  }
-  ::close(fd);
-  return ntohs(address.sin_port);
-}
-
 fs::path default_agent_binary() {
   std::vector<fs::path> tried;
   std::error_code ec;
@@ -719,7 +699,7 @@ int run_scenario(const ScenarioOptions& options) {
   } else if (::access(agent_bin.c_str(), X_OK) != 0 || fs::is_directory(agent_bin)) {
     throw UsageError(fmt::format("--agent-bin {}: not an executable file", agent_bin.string()));
   }
-  const std::uint16_t port = options.broadcast_port != 0 ? options.broadcast_port : free_udp_port();
+  const std::uint16_t port = options.broadcast_port != 0 ? options.broadcast_port : coros::free_udp_port();
 
   // Everything is checked before anything is written or started.
   WorkDir dir(options.keep_dir);

@@ -110,9 +110,6 @@ std::vector<std::pair<std::string, sim::Point>> robot_starts(const sim::House& h
 ScenarioPlan plan_scenario(const ScenarioOptions& options, const std::filesystem::path& dir,
                            std::uint16_t broadcast_port);
 
-// A UDP port that was free a moment ago (bind to port 0 and read it back).
-std::uint16_t free_udp_port();
-
 // The icars-agent binary when --agent-bin is not given: next to this executable, then in the
 // build tree beside it (../icars_agent/icars-agent), then the path CMake built it at. Throws
 // UsageError naming the places it looked.

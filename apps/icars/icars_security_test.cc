@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "child_process.h"
+#include "tls_files.h"
 #include "device.planet.h"
 #include "home.planet.h"
 #include "icars/planet/communicator.h"
@@ -162,8 +163,8 @@ TEST(IcarsSecurity, MutualTlsAdmitsTheHomesCertificatesOnly) {
   Scratch scratch;
   const auto home = scratch.path("home");
   const auto stranger = scratch.path("stranger");
-  ASSERT_EQ(run_command({"/bin/bash", kSource + "/scripts/make-certs.sh", home, "--client", "living-room"}).second, 0);
-  ASSERT_EQ(run_command({"/bin/bash", kSource + "/scripts/make-certs.sh", stranger, "--client", "living-room"}).second, 0);
+  planet_test::make_certificates(home, {"living-room"});
+  planet_test::make_certificates(stranger, {"living-room"});
   const auto access = scratch.write(
       "access.json",
       R"({"principals": [{"name": "living-room", "certificate": "living-room",

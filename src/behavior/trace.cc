@@ -19,25 +19,23 @@ std::string TraceRecord::field(std::string_view name) const {
   return "";
 }
 
-std::optional<double> TraceRecord::number(std::string_view name) const {
+namespace {
+
+template <class T>
+std::optional<T> typed_field(const std::vector<std::pair<std::string, TraceValue>>& fields, std::string_view name) {
   for (const auto& [n, v] : fields) {
-    if (n == name) {
-      if (const auto* d = std::get_if<double>(&v)) return *d;
-      return std::nullopt;
-    }
+    if (n != name) continue;
+    if (const auto* value = std::get_if<T>(&v)) return *value;
+    return std::nullopt;
   }
   return std::nullopt;
 }
 
-std::optional<bool> TraceRecord::flag(std::string_view name) const {
-  for (const auto& [n, v] : fields) {
-    if (n == name) {
-      if (const auto* b = std::get_if<bool>(&v)) return *b;
-      return std::nullopt;
-    }
-  }
-  return std::nullopt;
-}
+}  // namespace
+
+std::optional<double> TraceRecord::number(std::string_view name) const { return typed_field<double>(fields, name); }
+
+std::optional<bool> TraceRecord::flag(std::string_view name) const { return typed_field<bool>(fields, name); }
 
 std::string TraceRecord::to_json() const {
   nlohmann::ordered_json j;

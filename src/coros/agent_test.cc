@@ -12,6 +12,7 @@
 #include <mutex>
 
 #include "child_process.h"
+#include "fleet.h"
 #include "icars/coros/courier.h"
 #include "icars/coros/discovery.h"
 #include "icars/coros/monitor.h"
@@ -24,79 +25,9 @@ using planet_test::wait_until;
 
 const std::string kMap = std::string(ICARS_HOUSES_DIR) + "/paper_house.xml";
 
-std::uint16_t free_udp_port() {
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
-  return s.local_endpoint().port();
-}
-
-// Every event of every agent, thread-safe.
-class EventLog {
- public:
-  Agent::EventSink sink() {
-    return [this](const nlohmann::json& e) {
-      std::lock_guard lock(mutex_);
-      events_.push_back(e);
-    };
-  }
-  std::vector<nlohmann::json> find(const std::string& kind) const {
-    std::lock_guard lock(mutex_);
-    std::vector<nlohmann::json> out;
-    for (const auto& e : events_) {
-      if (e.value("event", "") == kind) out.push_back(e);
-    }
-    return out;
-  }
-  std::size_t count(const std::string& kind) const { return find(kind).size(); }
-  std::string dump() const {
-    std::lock_guard lock(mutex_);
-    std::string out;
-    for (const auto& e : events_) out += e.dump() + "\n";
-    return out;
-  }
-
- private:
-  mutable std::mutex mutex_;
-  std::vector<nlohmann::json> events_;
-};
-
-class Fleet : public ::testing::Test {
+class Fleet : public ::testing::Test, protected coros_test::FleetBase {
  protected:
-  AgentConfiguration config(const std::string& id, const std::string& role) {
-    AgentConfiguration c;
-    c.id = id;
-    c.role = role;
-    c.transport.broadcast_port = port_;
-    c.transport.faults = faults_;
-    c.transport.faults.seed = seed_++;
-    c.transport.key = key_;
-    c.hello_period = 50ms;
-    // Generous bounds for sanitizer builds on a loaded machine: auctions close as soon as
-    // every known robot has bid, so a long window costs nothing unless a bid is lost.
-    c.neighbor_expiry = 1500ms;
-    c.bid_window = 2000ms;
-    c.retry_period = 40ms;
-    c.max_retries = 50;
-    c.map = kMap;
-    return c;
-  }
-  Agent& add_agent(const AgentConfiguration& c) {
-    agents_.push_back(std::make_unique<Agent>(c));
-    agents_.back()->set_event_sink(log_.sink());
-    agents_.back()->add_operator(std::make_shared<DiscoveryOperator>());
-    return *agents_.back();
-  }
-  Agent& add_robot(const std::string& id, double x, double y, double speedup = 200) {
-    Agent& a = add_agent(config(id, "robot"));
-    SimRobotOptions o;
-    o.id = id;
-    o.start = {x, y, 0};
-    o.speedup = speedup;
-    auto robot = std::make_shared<SimRobot>(map_->house(), o);
-    robots_[id] = robot;
-    a.add_operator(std::make_shared<CourierRobotOperator>(robot, map_));
-    return a;
-  }
+  Fleet() : FleetBase(kMap) {}
   std::shared_ptr<CourierUserOperator> add_user() {
     Agent& a = add_agent(config("user", "user"));
     auto op = std::make_shared<CourierUserOperator>(map_);
@@ -104,33 +35,14 @@ class Fleet : public ::testing::Test {
     user_ = &a;
     return op;
   }
-  void start_all() {
-    for (auto& a : agents_) a->start();
-  }
-  bool converged() {
-    for (auto& a : agents_) {
-      if (a->call([&] { return a->neighbors().size(); }) != agents_.size() - 1) return false;
-    }
-    return true;
-  }
   double planned_cost(const std::string& robot, const std::string& pickup,
                       const std::string& dropoff) {
     const auto p = robots_.at(robot)->pose().position();
     return *map_->path_cost(p, map_->locate(pickup)) +
            *map_->path_cost(map_->locate(pickup), map_->locate(dropoff));
   }
-  void TearDown() override {
-    for (auto& a : agents_) a->stop();
-  }
+  void TearDown() override { stop_all(); }
 
-  std::uint16_t port_ = free_udp_port();
-  FaultInjection faults_;
-  std::uint64_t seed_ = 1;
-  FleetKey key_ = FleetKey::generate();
-  std::shared_ptr<const MapPlanner> map_ = MapPlanner::load(kMap, 0.25);
-  EventLog log_;
-  std::vector<std::unique_ptr<Agent>> agents_;
-  std::map<std::string, std::shared_ptr<SimRobot>> robots_;
   Agent* user_ = nullptr;
 };
 

@@ -22,6 +22,7 @@
 #include <thread>
 
 #include "child_process.h"
+#include "fleet.h"
 #include "icars/coros/agent.h"
 #include "icars/coros/courier.h"
 #include "icars/coros/discovery.h"
@@ -33,12 +34,6 @@ using namespace std::chrono_literals;
 using planet_test::wait_until;
 
 const std::string kMap = std::string(ICARS_HOUSES_DIR) + "/paper_house.xml";
-
-std::uint16_t free_udp_port() {
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
-  return s.local_endpoint().port();
-}
 
 // A host on the network without the fleet key: it hears every broadcast on the fleet's port
 // and sends raw datagrams from a socket of its own.
@@ -108,75 +103,18 @@ class Stranger {
   std::thread thread_;
 };
 
-class Authentication : public ::testing::Test {
+class Authentication : public ::testing::Test, protected coros_test::FleetBase {
  protected:
-  AgentConfiguration config(const std::string& id, const std::string& role) {
-    AgentConfiguration c;
-    c.id = id;
-    c.role = role;
-    c.transport.broadcast_port = port_;
-    if (insecure_) {
-      c.transport.insecure = true;
-    } else {
-      c.transport.key = key_;
-    }
-    c.transport.logger = logger_;
-    c.hello_period = 50ms;
-    c.neighbor_expiry = 1500ms;
-    c.bid_window = 1500ms;
-    c.retry_period = 40ms;
-    c.max_retries = 50;
-    c.map = kMap;
-    return c;
+  Authentication() : FleetBase(kMap) {
+    logger_ = std::make_shared<spdlog::logger>("coros-test", log_sink_);
+    bid_window_ = 1500ms;
   }
-  Agent& add_agent(const AgentConfiguration& c) {
-    agents_.push_back(std::make_unique<Agent>(c));
-    agents_.back()->set_event_sink([this](const nlohmann::json& e) {
-      std::lock_guard lock(events_mutex_);
-      events_.push_back(e);
-    });
-    agents_.back()->add_operator(std::make_shared<DiscoveryOperator>());
-    return *agents_.back();
-  }
-  Agent& add_robot(const std::string& id, double x, double y) {
-    Agent& a = add_agent(config(id, "robot"));
-    SimRobotOptions o;
-    o.id = id;
-    o.start = {x, y, 0};
-    o.speedup = 200;
-    a.add_operator(
-        std::make_shared<CourierRobotOperator>(std::make_shared<SimRobot>(map_->house(), o), map_));
-    return a;
-  }
-  bool converged() {
-    for (auto& a : agents_) {
-      if (a->call([&] { return a->neighbors().size(); }) != agents_.size() - 1) return false;
-    }
-    return true;
-  }
-  std::vector<nlohmann::json> events(const std::string& kind) {
-    std::lock_guard lock(events_mutex_);
-    std::vector<nlohmann::json> out;
-    for (const auto& e : events_) {
-      if (e.value("event", "") == kind) out.push_back(e);
-    }
-    return out;
-  }
-  std::vector<std::string> log_lines() { return log_->last_formatted(); }
-  void TearDown() override {
-    for (auto& a : agents_) a->stop();
-  }
+  std::vector<nlohmann::json> events(const std::string& kind) { return log_.find(kind); }
+  std::vector<std::string> log_lines() { return log_sink_->last_formatted(); }
+  void TearDown() override { stop_all(); }
 
-  std::uint16_t port_ = free_udp_port();
-  FleetKey key_ = FleetKey::generate();
-  bool insecure_ = false;
-  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> log_ =
+  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> log_sink_ =
       std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(1000);
-  std::shared_ptr<spdlog::logger> logger_ = std::make_shared<spdlog::logger>("coros-test", log_);
-  std::shared_ptr<const MapPlanner> map_ = MapPlanner::load(kMap, 0.25);
-  std::mutex events_mutex_;
-  std::vector<nlohmann::json> events_;
-  std::vector<std::unique_ptr<Agent>> agents_;
 };
 
 // The user, two bidding robots and a robot that never bids, so the round stays open for its

@@ -103,12 +103,6 @@ class Events {
   std::vector<nlohmann::json> events_;
 };
 
-std::uint16_t free_udp_port() {
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::udp::v4(), 0));
-  return s.local_endpoint().port();
-}
-
 TEST(MalformedDatagrams, TwentyThousandCostAFewEventsASecondWhoseCountsAddUp) {
   constexpr std::uint64_t kDatagrams = 20000;
   constexpr std::uint64_t kBatch = 100;  // what the receive buffer surely holds

@@ -376,4 +376,14 @@ TransportStats UdpTransport::stats() const {
   return impl_->stats;
 }
 
+std::uint16_t free_udp_port() {
+  asio::io_context io;
+  asio::ip::udp::socket socket(io);
+  asio::error_code error;
+  socket.open(asio::ip::udp::v4(), error);
+  if (!error) socket.bind(asio::ip::udp::endpoint(asio::ip::udp::v4(), 0), error);
+  if (error) throw CorosError(fmt::format("cannot find a free UDP port: {}", error.message()));
+  return socket.local_endpoint().port();
+}
+
 }  // namespace icars::coros

@@ -42,6 +42,7 @@
 #include <vector>
 
 #include "child_process.h"
+#include "tls_files.h"
 #include "icars/planet/frame.h"
 #include "test_interfaces.h"
 
@@ -790,19 +791,11 @@ TEST(Refusal, DenialLogIsRateLimitedPerAddress) {
 TEST(Refusal, FailedTlsHandshakesAreLoggedWithTheReasonRateLimited) {
   // A TLS listener; clients that speak plaintext to it fail the TLS handshake.
   const auto dir = std::filesystem::temp_directory_path() / fmt::format("icars-rl-certs-{}", ::getpid());
-  {
-    planet_test::ChildProcess make({"/bin/bash", ICARS_SOURCE_DIR "/scripts/make-certs.sh",
-                                    dir.string()});
-    const int status = make.wait();
-    ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "make-certs.sh failed";
-  }
+  planet_test::make_certificates(dir);
   CommunicatorOptions so;
   auto sink = std::make_shared<CaptureSink>();
   so.logger = capturing_logger(sink);
-  so.tls.mode = TlsMode::on;
-  so.tls.ca_file = (dir / "ca.pem").string();
-  so.tls.certificate_file = (dir / "server.pem").string();
-  so.tls.private_key_file = (dir / "server.key").string();
+  so.tls = planet_test::server_tls(dir);
   {
     Communicator server(so);
     const auto port = server.listen("127.0.0.1", 0);

@@ -12,6 +12,7 @@
 #include <future>
 
 #include "child_process.h"
+#include "tls_files.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/proxy.h"
 #include "test_interfaces.h"
@@ -40,46 +41,20 @@ class Certificates {
     root = fs::temp_directory_path() / fmt::format("icars-certs-{}", ::getpid());
     home = root / "home";
     stranger = root / "stranger";
-    make(home, {"--client", "dm-1", "--client", "robot"});
-    make(stranger, {"--client", "dm-1"});
+    make(home, {"dm-1", "robot"});
+    make(stranger, {"dm-1"});
   }
   ~Certificates() {
     std::error_code ignored;
     fs::remove_all(root, ignored);
   }
-  static void make(const fs::path& dir, std::vector<std::string> extra) {
-    std::vector<std::string> argv = {"/bin/bash", ICARS_SOURCE_DIR "/scripts/make-certs.sh",
-                                     dir.string()};
-    argv.insert(argv.end(), extra.begin(), extra.end());
-    planet_test::ChildProcess p(argv);
-    const int status = p.wait();
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 || !fs::exists(dir / "server.pem")) {
-      throw std::runtime_error("make-certs.sh failed for " + dir.string());
-    }
+  static void make(const fs::path& dir, const std::vector<std::string>& clients) {
+    planet_test::make_certificates(dir, clients);
   }
 };
 
-TlsOptions server_tls(const fs::path& dir) {
-  TlsOptions tls;
-  tls.mode = TlsMode::on;
-  tls.ca_file = (dir / "ca.pem").string();
-  tls.certificate_file = (dir / "server.pem").string();
-  tls.private_key_file = (dir / "server.key").string();
-  return tls;
-}
-
-TlsOptions client_tls(const fs::path& ca_dir, const std::string& certificate = {},
-                      const fs::path& cert_dir = {}) {
-  TlsOptions tls;
-  tls.mode = TlsMode::on;
-  tls.ca_file = (ca_dir / "ca.pem").string();
-  if (!certificate.empty()) {
-    const fs::path dir = cert_dir.empty() ? ca_dir : cert_dir;
-    tls.certificate_file = (dir / (certificate + ".pem")).string();
-    tls.private_key_file = (dir / (certificate + ".key")).string();
-  }
-  return tls;
-}
+using planet_test::client_tls;
+using planet_test::server_tls;
 
 // A server communicator with an echo servant at /echo and another at /admin/echo.
 struct Server {

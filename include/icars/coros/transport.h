@@ -122,4 +122,8 @@ class UdpTransport {
   TransportOptions options_;
 };
 
+// A UDP port on this host that was free a moment ago (bound to port 0 and read back): a fleet's
+// broadcast port for a run or a test. Throws CorosError saying why when no socket can be bound.
+std::uint16_t free_udp_port();
+
 }  // namespace icars::coros
