@@ -20,21 +20,11 @@ class FanService final : public icars::service::AdaptorOf<FanPrx> {
 // A sensor: the adaptor serves a TemperatureListener on the server and subscribes it to the
 // thermometer on every bind, so events flow again after the device reconnects.
 class ThermometerService final
-    : public icars::service::SensorAdaptor<ThermometerPrx, TemperatureListener, TemperatureEvent> {
+    : public icars::service::SensorAdaptor<ThermometerPrx, TemperatureListener, TemperatureEvent,
+                                           TemperatureListener::on_temperature> {
  public:
   ThermometerService(const df::DeviceInfo& device, const df::CapabilityInfo& capability)
       : SensorAdaptor("Thermometer", device, capability) {}
-
- protected:
-  void subscribe_listener(const ThermometerPrx& thermometer,
-                          const icars::planet::Ref<TemperatureListener>& listener,
-                          std::function<void(std::exception_ptr)> done) override {
-    thermometer.subscribe_async(listener, std::move(done));
-  }
-  void implement_listener(icars::planet::Servant& servant) override {
-    servant.implement(TemperatureListener::on_temperature,
-                      [this](const TemperatureEvent& e, const icars::planet::Current& c) { deliver(e, c); });
-  }
 };
 
 // Teaches `factory` the adaptors of fan.idl's capabilities.

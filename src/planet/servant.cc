@@ -86,12 +86,15 @@ void ObjectAdapter::add(const std::string& path, std::shared_ptr<Servant> servan
   }
 }
 
-bool ObjectAdapter::remove(std::string_view path) {
+bool ObjectAdapter::remove(std::string_view path) { return remove(path, nullptr); }
+
+bool ObjectAdapter::remove(std::string_view path, const Servant* only) {
   Entry removed;
   {
     std::unique_lock lock(mutex_);
     auto it = servants_.find(path);
     if (it == servants_.end()) return false;
+    if (only && it->second.servant.get() != only) return false;
     removed = std::move(it->second);
     servants_.erase(it);
   }

@@ -7,6 +7,9 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <asio/steady_timer.hpp>
+#include <asio/this_coro.hpp>
+#include <asio/use_awaitable.hpp>
 #include <atomic>
 #include <functional>
 #include <mutex>
@@ -45,8 +48,25 @@ class FakeTV final : public home::TVControlServant {
 
 class FakeSofa final : public home::OccupancySensorServant {
  public:
-  explicit FakeSofa(bool occupied) : occupied_(occupied) {}
+  // `hold_readings`: occupied() takes its reading, then answers only after release_reading()
+  // (asynchronously: a servant never blocks its communicator's io thread, which also sends the
+  // sensor's events).
+  FakeSofa(bool occupied, bool hold_readings) : occupied_(occupied), holding_(hold_readings) {
+    if (!hold_readings) return;
+    implement(home::OccupancySensor::occupied, [this]() -> asio::awaitable<bool> {
+      const bool reading = occupied_;
+      reading_taken_ = true;
+      asio::steady_timer poll(co_await asio::this_coro::executor);
+      while (holding_) {
+        poll.expires_after(2ms);
+        co_await poll.async_wait(asio::use_awaitable);
+      }
+      co_return reading;
+    });
+  }
   bool occupied(const p::Current&) override { return occupied_; }
+  bool reading_taken() const { return reading_taken_; }
+  void release_reading() { holding_ = false; }
   std::string furniture(const p::Current&) override { return "sofa"; }
   void subscribe(home::OccupancyListenerPrx l, const p::Current&) override { events_.subscribe(l); }
   void unsubscribe(home::OccupancyListenerPrx l, const p::Current&) override { events_.unsubscribe(l); }
@@ -58,6 +78,8 @@ class FakeSofa final : public home::OccupancySensorServant {
 
  private:
   std::atomic<bool> occupied_;
+  std::atomic<bool> holding_;
+  std::atomic<bool> reading_taken_{false};
   p::Publisher<home::OccupancyEvent> events_{home::OccupancyListener::on_occupancy};
 };
 
@@ -68,8 +90,9 @@ struct Manager {
   std::shared_ptr<FakeTV> tv = std::make_shared<FakeTV>();
   std::shared_ptr<FakeSofa> sofa;
 
-  Manager(std::uint16_t port, const std::string& token, bool sofa_occupied = false)
-      : communicator(options(token)), sofa(std::make_shared<FakeSofa>(sofa_occupied)) {
+  Manager(std::uint16_t port, const std::string& token, bool sofa_occupied = false,
+          bool hold_sofa_readings = false)
+      : communicator(options(token)), sofa(std::make_shared<FakeSofa>(sofa_occupied, hold_sofa_readings)) {
     auto tv_device = std::make_shared<device::Device>("tv", "TV", "living_room");
     tv_device->add("tv_control", tv);
     auto sofa_device = std::make_shared<device::Device>("sofa_sensor", "OccupancySensor", "living_room");
@@ -78,6 +101,9 @@ struct Manager {
     manager.add(sofa_device);
     manager.connect("127.0.0.1", port);
   }
+  ~Manager() { sofa->release_reading(); }  // never leaves a reading waiting
+  Manager(const Manager&) = delete;
+  Manager& operator=(const Manager&) = delete;
   static p::CommunicatorOptions options(const std::string& token) {
     p::CommunicatorOptions o;
     o.token = token;
@@ -118,7 +144,9 @@ p::CommunicatorOptions server_options(std::shared_ptr<const p::AccessPolicy> acc
 
 class Ownership : public ::testing::Test {
  protected:
-  Ownership() : server_(server_options(home_access())), sf_(server_, AdaptorFactory::house(), registry_options()) {
+  // Devices gone for `forget_after` are forgotten: soon, for the tests of forgetting.
+  explicit Ownership(std::chrono::milliseconds forget_after = 500ms)
+      : server_(server_options(home_access())), sf_(server_, AdaptorFactory::house(), registry_options(forget_after)) {
     port_ = server_.listen("127.0.0.1", 0);
     devices_ = sf_.container().watch_devices([this](const p::Event& e) {
       std::lock_guard lock(mutex_);
@@ -126,9 +154,9 @@ class Ownership : public ::testing::Test {
     });
   }
   ~Ownership() override { sf_.container().remove_device_watcher(devices_); }
-  static RegistryOptions registry_options() {
+  static RegistryOptions registry_options(std::chrono::milliseconds forget_after) {
     RegistryOptions o;
-    o.forget_after = 500ms;
+    o.forget_after = forget_after;
     return o;
   }
   std::vector<p::Event> events(const std::string& type) {
@@ -269,6 +297,29 @@ TEST_F(Ownership, ARemovedPrincipalsDevicesCanBeForgottenAtOnce) {
   EXPECT_EQ(events("DeviceForgotten").size(), 2u);
 }
 
+TEST_F(Ownership, AForgottenSensorRegistersAgainWhileItsOldServiceIsStillHeld) {
+  auto living_room = std::make_unique<Manager>(port_, "living-room-token");
+  ASSERT_TRUE(living_room->manager.wait_registered(1, 20s));
+  // A behavior still holds the sofa's service when its manager vanishes for good.
+  const auto held = sf_.container().find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return living_room->sofa->subscribers() == 1; }));
+  living_room.reset();
+  ASSERT_TRUE(planet_test::wait_until([&] { return events("DeviceForgotten").size() == 2; }, 20s));
+
+  living_room = std::make_unique<Manager>(port_, "living-room-token");
+  ASSERT_TRUE(living_room->manager.wait_registered(1, 20s));
+  EXPECT_EQ(living_room->manager.last_error(), "");
+  const auto sofa = sf_.container().find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
+  ASSERT_NE(sofa, nullptr);
+  EXPECT_NE(sofa, held);
+  std::atomic<int> heard{0};
+  sofa->subscribe([&](const home::OccupancyEvent&) { ++heard; });
+  ASSERT_TRUE(planet_test::wait_until([&] { return living_room->sofa->subscribers() == 1; }));
+  living_room->sofa->sit(true);
+  ASSERT_TRUE(planet_test::wait_until([&] { return heard == 1; }));
+  EXPECT_EQ(held->events_received(), 0u);
+}
+
 TEST(AnonymousRegistry, IsBoundedWithoutAnAccessPolicy) {
   p::Communicator server;
   RegistryOptions options;
@@ -282,7 +333,11 @@ TEST(AnonymousRegistry, IsBoundedWithoutAnAccessPolicy) {
 
 // --- State across outages ------------------------------------------------------------------------
 
-class Restore : public Ownership {};
+// Devices away for a moment, never long enough to be forgotten however slow the machine.
+class Restore : public Ownership {
+ protected:
+  Restore() : Ownership(std::chrono::minutes(10)) {}
+};
 
 TEST_F(Restore, ADeviceThatLostItsStateIsToldAndReapplied) {
   auto living_room = std::make_unique<Manager>(port_, "living-room-token");
@@ -406,6 +461,37 @@ TEST_F(Restore, ASensorThatChangedWhileAwayIsReread) {
   }, 20s));
   std::lock_guard lock(mutex);
   EXPECT_EQ(seen, (std::vector<bool>{true, false}));
+}
+
+// The server asks a sensor for its reading when it binds it; an event published after the reading
+// was taken may reach the server before the reading's reply. The older reading must not undo it.
+TEST_F(Restore, AnEventThatOvertakesTheReadingIsNotUndone) {
+  Manager living_room(port_, "living-room-token", false, /*hold_sofa_readings=*/true);
+  ASSERT_TRUE(living_room.manager.wait_registered(1, 20s));
+  const auto sofa = sf_.container().find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
+  ASSERT_NE(sofa, nullptr);
+  std::mutex heard_mutex;
+  std::vector<bool> heard;
+  sofa->subscribe([&](const home::OccupancyEvent& e) {
+    std::lock_guard lock(heard_mutex);
+    heard.push_back(e.occupied);
+  });
+  const auto heard_now = [&] {
+    std::lock_guard lock(heard_mutex);
+    return heard;
+  };
+  ASSERT_TRUE(planet_test::wait_until([&] { return living_room.sofa->reading_taken(); }));
+  living_room.sofa->sit(true);  // after the reading (unoccupied) was taken, before its reply
+  ASSERT_TRUE(planet_test::wait_until([&] { return heard_now().size() == 1; }));
+  living_room.sofa->release_reading();
+  sofa->proxy().furniture();  // answered after the reading: the reading's reply is in
+  living_room.sofa->sit(false);
+  living_room.sofa->sit(true);
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    const auto h = heard_now();
+    return h.size() >= 3 && h.back();
+  }));
+  EXPECT_EQ(heard_now(), (std::vector<bool>{true, false, true}));
 }
 
 }  // namespace

@@ -201,6 +201,7 @@ void DeviceRegistry::unregister_device(const std::string& id, const planet::Curr
 void DeviceRegistry::remove_services(const std::vector<std::shared_ptr<Adaptor>>& services) {
   for (const auto& s : services) {
     s->unbind();
+    s->retire();
     container_.remove(s->id());
   }
 }

@@ -268,6 +268,8 @@ struct ActiveCalls {
 }  // namespace detail
 
 // Maps servant paths to servants and tracks the calls in progress on each. Thread-safe.
+// Not to be confused with icars::service::Adaptor (include/icars/service/adaptor.h), a Service
+// Framework service that wraps one device capability.
 class ObjectAdapter {
  public:
   // A call in progress on a servant, from begin_call until this is destroyed (for an
@@ -308,6 +310,9 @@ class ObjectAdapter {
   // once: calls in progress, including the caller's own, run to their end and keep the servant
   // alive until then.
   bool remove(std::string_view path);
+  // Like remove(path), but only when the servant there is `only` (false otherwise): an owner
+  // retiring its servant never removes one that has since taken the path over.
+  bool remove(std::string_view path, const Servant* only);
   std::shared_ptr<Servant> find(std::string_view path) const;
   // The servant at `path` for one call (empty if none); remove(path) waits for it to end.
   Dispatch begin_call(std::string_view path) const;

@@ -45,6 +45,9 @@ struct Restoration {
 std::string describe(const std::vector<StateDifference>& differences);
 std::string describe_value(const planet::Value& value);
 
+// The service that wraps one capability of a registered device.
+// Not to be confused with icars::planet::ObjectAdapter (include/icars/planet/servant.h),
+// PLANET's table of servants by path.
 class Adaptor : public Service {
  public:
   Adaptor(std::string type, const df::DeviceInfo& device, const df::CapabilityInfo& capability);
@@ -72,6 +75,10 @@ class Adaptor : public Service {
   void bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link);
   // The device's link is gone: the service becomes unavailable until the next bind.
   void unbind();
+  // The registry removed this service for good (its device was unregistered or forgotten): it
+  // releases what it registered in the device's name (a sensor's listener), so the device can
+  // register again under the same id while behaviors still hold this object.
+  void retire() { on_removed(); }
   // Reports the two-way calls made through proxy() from the next bind on (the server's record
   // of the commands it sent to devices); null: none.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
@@ -80,6 +87,7 @@ class Adaptor : public Service {
   // Hooks for subclasses, called with the adaptor's lock released.
   virtual void on_bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link) = 0;
   virtual void on_unbind() {}
+  virtual void on_removed() {}
   void log_failure(planet::Communicator& communicator, std::string_view what,
                    std::exception_ptr error) const;
   // The observer for this adaptor's proxy: the registry's (if any), and the adaptor's own
@@ -137,15 +145,19 @@ class AdaptorOf : public Adaptor {
 };
 
 // A sensor adaptor: serves a listener object on the server and subscribes it to the sensor on
-// every bind, so events flow again after the device comes back.
-template <class Prx, class ListenerInterface, class Event>
+// every bind, so events flow again after the device comes back. `OnEvent` is the listener's
+// one-way operation (an IDL `oneway void on_x(Event e)`); the sensor's interface has
+// `subscribe(Listener)`, whose proxy method subscribe_async the adaptor calls:
+//
+//   class ThermometerService final
+//       : public SensorAdaptor<ThermometerPrx, TemperatureListener, TemperatureEvent,
+//                              TemperatureListener::on_temperature> { ... };
+template <class Prx, class ListenerInterface, class Event, const planet::OneWay<Event>& OnEvent>
 class SensorAdaptor : public AdaptorOf<Prx> {
  public:
   using Base = AdaptorOf<Prx>;
   using Base::Base;
-  ~SensorAdaptor() override {
-    if (communicator_) communicator_->adapter().remove(listener_path());
-  }
+  ~SensorAdaptor() override { release_listener(); }
 
   // `fn(event)` runs for every event the sensor publishes. Returns an id for unsubscribe.
   std::uint64_t subscribe(std::function<void(const Event&)> fn) { return events_.add(std::move(fn)); }
@@ -153,34 +165,39 @@ class SensorAdaptor : public AdaptorOf<Prx> {
   std::uint64_t events_received() const { return received_.load(); }
 
  protected:
-  // The sensor's subscribe operation, called asynchronously with the listener reference.
-  virtual void subscribe_listener(const Prx& sensor, const planet::Ref<ListenerInterface>& listener,
-                                  std::function<void(std::exception_ptr)> done) = 0;
-  // Registers the listener servant's one operation.
-  virtual void implement_listener(planet::Servant& servant) = 0;
   void deliver(const Event& e, const planet::Current& current) {
     this->check_own_link(current);
+    {
+      std::lock_guard lock(last_mutex_);
+      ++events_since_bind_;
+      last_ = e;
+    }
     ++received_;
-    remember(e);
     events_.notify(e);
   }
   // Delivers `e` (a reading taken when the sensor was bound) unless it says what the last event
   // said: a change missed while the device was away reaches listeners. The first reading, before
-  // any event, is only the baseline (what a behavior reads when it starts), not an event.
+  // any event, is only the baseline (what a behavior reads when it starts), not an event. A
+  // reading is dropped when an event arrived after it was asked for: the event is at least as
+  // new (the sensor may have changed between the reading and the event reaching this server).
   void deliver_if_changed(const Event& e) {
-    if (!last_event()) {
-      remember(e);
-      return;
+    {
+      std::lock_guard lock(last_mutex_);
+      if (events_since_bind_ != 0) return;
+      if (!last_) {
+        last_ = e;
+        return;
+      }
+      if (!changed_from(*last_, e)) return;
+      last_ = e;
     }
-    if (!changed(e)) return;
     ++received_;
-    remember(e);
     events_.notify(e);
   }
   // Sensors whose current value can be read implement these: `reread` reads it and calls
-  // deliver_if_changed; `changed` compares a reading with the last event.
+  // deliver_if_changed; `changed_from` compares a reading with the last event.
   virtual void reread(const Prx&) {}
-  virtual bool changed(const Event&) const { return true; }
+  virtual bool changed_from(const Event& /*last*/, const Event& /*reading*/) const { return true; }
   std::optional<Event> last_event() const {
     std::lock_guard lock(last_mutex_);
     return last_;
@@ -191,12 +208,16 @@ class SensorAdaptor : public AdaptorOf<Prx> {
     if (!communicator_) {
       communicator_ = &communicator;
       auto servant = std::make_shared<planet::Servant>(std::string(ListenerInterface::type_id));
-      implement_listener(*servant);
+      servant->implement(OnEvent, [this](const Event& e, const planet::Current& c) { deliver(e, c); });
       communicator.adapter().add(listener_path(), servant);
+      listener_ = servant.get();
+    }
+    {
+      std::lock_guard lock(last_mutex_);
+      events_since_bind_ = 0;
     }
     const auto ref = communicator.reference<ListenerInterface>(listener_path());
-    subscribe_listener(this->proxy(), ref, [weak = this->weak_from_this(), &communicator](
-                                               std::exception_ptr e) {
+    this->proxy().subscribe_async(ref, [weak = this->weak_from_this(), &communicator](std::exception_ptr e) {
       auto self = std::static_pointer_cast<SensorAdaptor>(weak.lock());
       if (!self) return;
       if (e) {
@@ -208,16 +229,19 @@ class SensorAdaptor : public AdaptorOf<Prx> {
   }
 
  private:
-  void remember(const Event& e) {
-    std::lock_guard lock(last_mutex_);
-    last_ = e;
+  std::string listener_path() const { return "/sf/listeners/" + this->id(); }
+  void on_removed() override { release_listener(); }
+  // Removes the listener servant if it is still this adaptor's (a successor may hold the path).
+  void release_listener() {
+    if (communicator_ && listener_) communicator_->adapter().remove(listener_path(), listener_);
+    listener_ = nullptr;
   }
 
-  std::string listener_path() const { return "/sf/listeners/" + this->id(); }
-
   planet::Communicator* communicator_ = nullptr;
+  const planet::Servant* listener_ = nullptr;
   mutable std::mutex last_mutex_;
   std::optional<Event> last_;
+  std::uint64_t events_since_bind_ = 0;  // events delivered since the reading was asked for
   Listeners<Event> events_;
   std::atomic<std::uint64_t> received_{0};
 };
@@ -291,79 +315,44 @@ class SimulationService final : public AdaptorOf<home::SimulationPrx> {
       : AdaptorOf("Simulation", d, c) {}
 };
 
-class SoundSensor final : public SensorAdaptor<home::MicrophonePrx, home::SoundListener, home::SoundEvent> {
+class SoundSensor final : public SensorAdaptor<home::MicrophonePrx, home::SoundListener, home::SoundEvent,
+                                                home::SoundListener::on_sound> {
  public:
   SoundSensor(const df::DeviceInfo& d, const df::CapabilityInfo& c) : SensorAdaptor("SoundSensor", d, c) {}
-
- protected:
-  void subscribe_listener(const home::MicrophonePrx& mic, const planet::Ref<home::SoundListener>& l,
-                          std::function<void(std::exception_ptr)> done) override {
-    mic.subscribe_async(l, std::move(done));
-  }
-  void implement_listener(planet::Servant& s) override {
-    s.implement(home::SoundListener::on_sound, [this](const home::SoundEvent& e, const planet::Current& c) { deliver(e, c); });
-  }
 };
 
 // The robot's wheels as a navigation service: go_to/go_to_waypoint/stop and position events.
-class NavigationService final
-    : public SensorAdaptor<home::WheelsPrx, home::PositionListener, home::PositionEvent> {
+class NavigationService final : public SensorAdaptor<home::WheelsPrx, home::PositionListener, home::PositionEvent,
+                                                      home::PositionListener::on_position> {
  public:
   NavigationService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : SensorAdaptor("Navigation", d, c) {}
-
- protected:
-  void subscribe_listener(const home::WheelsPrx& wheels, const planet::Ref<home::PositionListener>& l,
-                          std::function<void(std::exception_ptr)> done) override {
-    wheels.subscribe_async(l, std::move(done));
-  }
-  void implement_listener(planet::Servant& s) override {
-    s.implement(home::PositionListener::on_position,
-                [this](const home::PositionEvent& e, const planet::Current& c) { deliver(e, c); });
-  }
 };
 
-class MotionSensorService final
-    : public SensorAdaptor<home::MotionSensorPrx, home::MotionListener, home::MotionEvent> {
+class MotionSensorService final : public SensorAdaptor<home::MotionSensorPrx, home::MotionListener,
+                                                        home::MotionEvent, home::MotionListener::on_motion> {
  public:
   MotionSensorService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : SensorAdaptor("MotionSensor", d, c) {}
 
  protected:
-  void subscribe_listener(const home::MotionSensorPrx& sensor, const planet::Ref<home::MotionListener>& l,
-                          std::function<void(std::exception_ptr)> done) override {
-    sensor.subscribe_async(l, std::move(done));
-  }
-  void implement_listener(planet::Servant& s) override {
-    s.implement(home::MotionListener::on_motion, [this](const home::MotionEvent& e, const planet::Current& c) { deliver(e, c); });
-  }
   void reread(const home::MotionSensorPrx& sensor) override;
-  bool changed(const home::MotionEvent& e) const override {
-    const auto last = last_event();
-    return !last || last->motion != e.motion;
+  bool changed_from(const home::MotionEvent& last, const home::MotionEvent& reading) const override {
+    return last.motion != reading.motion;
   }
 };
 
 class OccupancyService final
-    : public SensorAdaptor<home::OccupancySensorPrx, home::OccupancyListener, home::OccupancyEvent> {
+    : public SensorAdaptor<home::OccupancySensorPrx, home::OccupancyListener, home::OccupancyEvent,
+                           home::OccupancyListener::on_occupancy> {
  public:
   OccupancyService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
       : SensorAdaptor("OccupancySensor", d, c) {}
 
  protected:
-  void subscribe_listener(const home::OccupancySensorPrx& sensor,
-                          const planet::Ref<home::OccupancyListener>& l,
-                          std::function<void(std::exception_ptr)> done) override {
-    sensor.subscribe_async(l, std::move(done));
-  }
-  void implement_listener(planet::Servant& s) override {
-    s.implement(home::OccupancyListener::on_occupancy,
-                [this](const home::OccupancyEvent& e, const planet::Current& c) { deliver(e, c); });
-  }
   void reread(const home::OccupancySensorPrx& sensor) override;
-  bool changed(const home::OccupancyEvent& e) const override {
-    const auto last = last_event();
-    return !last || last->occupied != e.occupied;
+  bool changed_from(const home::OccupancyEvent& last, const home::OccupancyEvent& reading) const override {
+    return last.occupied != reading.occupied;
   }
 };
 
