@@ -48,6 +48,7 @@
 #include <string>
 #include <vector>
 
+#include "announcement.h"
 #include "child_process.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/endpoint.h"
@@ -253,10 +254,9 @@ void run_scenario(const fs::path& dir, const std::string& house_file, const Opti
 
   Program server("icars", dir, {kIcars, "run", kPolicy, "--world", house_file, "--external", "--listen",
                                 "127.0.0.1:0", "--speed", fmt::format("{}", o.speedup), "--until", "07:30"});
-  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
-  const auto listening = server.expect([&](const std::string& l) { return l.starts_with(prefix); }, kStartBound,
-                                       "'" + prefix + "PORT'");
-  const auto endpoint = "127.0.0.1:" + listening.substr(prefix.size(), listening.find(';') - prefix.size());
+  const auto listening = server.expect([&](const std::string& l) { return !icars::app::announced_port(l).empty(); },
+                                       kStartBound, fmt::format("'{}HOST:PORT'", icars::app::kServerAnnouncement));
+  const auto endpoint = "127.0.0.1:" + icars::app::announced_port(listening);
 
   std::vector<std::unique_ptr<Program>> managers;
   for (std::size_t i = 0; i < plan.size(); ++i) {

@@ -22,9 +22,10 @@ declare -A max_len=([frame_decoder_fuzz]=40000 [payload_fuzz]=8192 [idl_parser_f
                     [policy_parser_fuzz]=16384 [coros_decoder_fuzz]=4096)
 
 scripts/install-deps.sh
-# Optimised with debug info; assertions stay on (no NDEBUG), they are what the fuzzer trips.
+# Optimised with line tables (enough for the sanitizers' stack traces); assertions stay on (no
+# NDEBUG), they are what the fuzzer trips.
 cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -g" -DICARS_BUILD_FUZZERS=ON -DICARS_BUILD_TESTS=OFF \
+  "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -gline-tables-only" -DICARS_BUILD_FUZZERS=ON -DICARS_BUILD_TESTS=OFF \
   -DICARS_BUILD_BENCHMARKS=OFF -DICARS_BUILD_EXAMPLES=OFF -DICARS_WITH_ROS=OFF >/dev/null
 cmake --build "$build" -j "$(nproc)" --target "${targets[@]}"
 

@@ -26,6 +26,7 @@
 #include <thread>
 #include <vector>
 
+#include "announcement.h"
 #include "child_process.h"
 #include "fault_proxy.h"
 #include "house_processes.h"
@@ -95,11 +96,7 @@ Outcome run_with_faults(const std::string& until, const std::vector<Step>& steps
   std::string port;
   while (auto line = mediator.read_line(60s)) {
     out.mediator_output += *line + "\n";
-    const std::string prefix = "[icars] mediating server on 127.0.0.1:";
-    if (line->starts_with(prefix)) {
-      port = line->substr(prefix.size(), line->find(';') - prefix.size());
-      break;
-    }
+    if (port = icars::app::announced_port(*line); !port.empty()) break;
   }
   if (port.empty()) {
     ADD_FAILURE() << "the mediator reported no port:\n" << out.mediator_output;

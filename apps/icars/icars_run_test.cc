@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "icars/sim/house.h"
+#include "announcement.h"
 #include "child_process.h"
 
 using nlohmann::json;
@@ -217,11 +218,7 @@ TEST(IcarsRun, ExternalDeviceManagerInItsOwnProcess) {
                                       "--until", "18:30", "--trace", trace_file});
   std::string port;
   while (auto line = mediator.read_line(std::chrono::seconds(60))) {
-    const std::string prefix = "[icars] mediating server on 127.0.0.1:";
-    if (line->starts_with(prefix)) {
-      port = line->substr(prefix.size(), line->find(';') - prefix.size());
-      break;
-    }
+    if (port = icars::app::announced_port(*line); !port.empty()) break;
   }
   ASSERT_FALSE(port.empty());
   planet_test::ChildProcess devices({kDeviceManager, "--house", kSource + "/houses/paper_house.xml", "--server",

@@ -12,6 +12,7 @@
 #include <unistd.h>
 #include <vector>
 
+#include "announcement.h"
 #include "child_process.h"
 #include "tls_files.h"
 #include "device.planet.h"
@@ -70,11 +71,8 @@ std::pair<std::unique_ptr<planet_test::ChildProcess>, std::string> start_mediato
                                    "--trace", trace, "--quiet"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   auto mediator = std::make_unique<planet_test::ChildProcess>(argv);
-  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
   while (auto line = mediator->read_line(60s)) {
-    if (line->starts_with(prefix)) {
-      return {std::move(mediator), line->substr(prefix.size(), line->find(';') - prefix.size())};
-    }
+    if (auto port = icars::app::announced_port(*line); !port.empty()) return {std::move(mediator), port};
   }
   return {std::move(mediator), ""};
 }

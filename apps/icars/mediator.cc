@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "announcement.h"
 #include "icars/behavior/house_behaviors.h"
 #include "icars/device/simulated_house.h"
 #include "icars/report/recorders.h"
@@ -214,8 +215,7 @@ int run(const RunOptions& options) {
     return fail(2, fmt::format("cannot listen on {}: {}", options.listen, e.what()));
   }
   const auto host = server->endpoint().host;
-  std::printf("[icars] mediating server on %s:%u; policy %s; house %s\n", host.c_str(), bound,
-              repository.path_of(options.policy).c_str(), house.name.c_str());
+  std::printf("%s\n", app::server_announcement(host, bound, repository.path_of(options.policy), house.name).c_str());
 
   // --- The house: simulated device managers in this process, or elsewhere. -------------------
   std::unique_ptr<device::SimulatedHouse> home;

@@ -1,5 +1,7 @@
 #include "house_processes.h"
 
+#include "announcement.h"
+
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -127,10 +129,9 @@ bool Program::exited() const {
 
 std::string start_mediator(Program& server, std::vector<std::string>& output) {
   std::string port;
-  const std::string prefix = "[icars] mediating server on 127.0.0.1:";
   planet_test::wait_until([&] {
     for (auto& line : server.lines()) {
-      if (line.starts_with(prefix)) port = line.substr(prefix.size(), line.find(';') - prefix.size());
+      if (port.empty()) port = icars::app::announced_port(line);
       output.push_back(std::move(line));
     }
     return !port.empty() || server.exited();
