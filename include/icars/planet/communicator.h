@@ -52,7 +52,18 @@ struct CommunicatorOptions {
   std::string token;  // sent in CONNECT to authenticate this endpoint to servers
   // Who may connect to this endpoint's listeners and what each may call; null: anyone, anything.
   std::shared_ptr<const AccessPolicy> access;
-  std::string pun;   // this endpoint's name in CONNECT/CONNECT_ACK; default "<address>:<port>"
+  // PUN, the PLANET unique name: the name this endpoint announces in CONNECT (as a client) and
+  // CONNECT_ACK (as a server), which the peer keeps as Connection::peer_pun(). It also names the
+  // endpoint in the remote references it hands out (ObjectRef::pun), so that a receiver finds
+  // the connection that leads to the object (resolve()), and a Publisher tells subscribers
+  // apart by it. The ICARS paper (4.1.1) uses the abbreviation without spelling it out and
+  // describes the field as the endpoint's unique identifier, "<ip>:<port>". PLANET does not
+  // check that it is unique: give every endpoint its own. Empty (the default): listen() sets
+  // "<address>:<port>" of the first listener; an endpoint that never listens announces its
+  // socket's local "<ip>:<port>" on each connection and hands out references with an empty PUN
+  // ("the sender"). At most 1008 bytes, less the token's length + 4 when a token is set
+  // (docs/protocol.md 3.1).
+  std::string pun;
   std::string name = "planet";                   // logger name
   std::shared_ptr<spdlog::logger> logger;        // default: a stderr logger at "info"
 };

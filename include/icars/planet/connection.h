@@ -86,6 +86,8 @@ enum class ConnectionRole : std::uint8_t { client, server };
 
 // What a client says about itself in CONNECT, and what TLS proved about it.
 struct ConnectRequest {
+  // The client's PUN (PLANET unique name): the name it announces for itself, by default its
+  // "<ip>:<port>" (CommunicatorOptions::pun explains it). Not checked for uniqueness.
   std::string pun;
   std::string token;             // empty: none sent
   std::string certificate_name;  // common name of its verified TLS client certificate, if any

@@ -65,8 +65,10 @@ struct StreamRef {
   bool operator==(const StreamRef&) const = default;
 };
 
-// A remote object passed by reference (PLANET `remote`). An empty `pun` means "an object of the
-// peer that sent this reference", reachable over the connection the reference arrived on.
+// A remote object passed by reference (PLANET `remote`): the PUN (PLANET unique name,
+// CommunicatorOptions::pun) of the endpoint that hosts it, its servant path and its type id.
+// An empty `pun` means "an object of the peer that sent this reference", reachable over the
+// connection the reference arrived on.
 struct ObjectRef {
   std::string pun;
   std::string path;
