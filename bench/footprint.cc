@@ -50,10 +50,10 @@
 
 #include "announcement.h"
 #include "child_process.h"
+#include "icars/clock/time.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/endpoint.h"
 #include "icars/sim/house.h"
-#include "icars/sim/time.h"
 
 namespace {
 
@@ -287,9 +287,9 @@ void run_scenario(const fs::path& dir, const std::string& house_file, const Opti
 
   // The server's timeline lines start with "[dD HH:MM:SS"; wait for one at or after --settle,
   // the first such time of day after the house's start (as `icars run --until` counts).
-  const auto day = icars::sim::kDay * (house.start_time / icars::sim::kDay);
-  auto settle = day + *icars::sim::parse_time_of_day(o.settle);
-  if (settle <= house.start_time) settle += icars::sim::kDay;
+  const auto day = icars::kDay * (house.start_time / icars::kDay);
+  auto settle = day + *icars::parse_time_of_day(o.settle);
+  if (settle <= house.start_time) settle += icars::kDay;
   const auto settle_s = settle.count() / 1000;
   server.expect(
       [&](const std::string& l) {
@@ -402,7 +402,7 @@ int main(int argc, char** argv) {
   app.add_option("--runs", o.runs, "repetitions (medians are reported)")->check(CLI::Range(1, 100));
   app.add_option("--settle", o.settle, "sample once the server's simulated time reaches this time of day (HH:MM)")
       ->check([](const std::string& t) {
-        return icars::sim::parse_time_of_day(t) ? std::string() : "not a time of day (HH:MM): " + t;
+        return icars::parse_time_of_day(t) ? std::string() : "not a time of day (HH:MM): " + t;
       });
   app.add_option("--speedup", o.speedup, "simulated seconds per wall-clock second")->check(CLI::Range(1.0, 10000.0));
   app.add_option("--devices", o.server_devices, "devices registered with the server in the second scenario");

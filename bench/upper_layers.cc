@@ -52,23 +52,25 @@
 #include <thread>
 #include <unistd.h>
 
+#include "bench_util.h"
 #include "icars/behavior/composite.h"
 #include "icars/behavior/condition.h"
-#include "icars/behavior/house_behaviors.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/control/collaboration.h"
 #include "icars/control/coordinator.h"
 #include "icars/control/policy.h"
-#include "bench_util.h"
+#include "icars/home/behaviors.h"
 
 namespace {
 
 namespace b = icars::behavior;
 namespace c = icars::control;
-using icars::sim::SimClock;
-using icars::sim::SimTime;
+using icars::SimClock;
+using icars::Time;
 using Clock = std::chrono::steady_clock;
 using Ms = std::chrono::duration<double, std::milli>;
 using namespace std::chrono_literals;
+namespace home = icars::home;
 
 using icars::bench::Stats;
 using icars::bench::stats;
@@ -104,7 +106,7 @@ struct ControlResult {
 
 ControlResult run_control(const std::string& path, int states, const b::BehaviorRegistry& registry) {
   ControlResult result;
-  SimClock clock{SimTime{0}};
+  SimClock clock{Time{0}};
   b::Runtime runtime(clock);
   icars::service::ServiceContainer services;
   b::Trace trace;
@@ -277,7 +279,7 @@ std::pair<double, std::uint64_t> stream_events(b::Runtime& runtime, Tree& tree, 
 
 BehaviorResult run_behavior(int node_count, int branching, int events, int fanout_events) {
   BehaviorResult result;
-  SimClock clock{SimTime{0}};
+  SimClock clock{Time{0}};
   b::Runtime runtime(clock);
   icars::service::ServiceContainer services;
   b::Trace trace;
@@ -358,7 +360,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   try {
-    const auto registry = b::house::make_house_registry();
+    const auto registry = home::behavior_registry();
     const auto path = (std::filesystem::temp_directory_path() / fmt::format("upper_bench_chain_{}.xml", ::getpid())).string();
     {
       std::ofstream out(path);

@@ -1,9 +1,9 @@
 # icars_add_test(NAME <name> SOURCES <files...> LIBS <targets...> [TIMEOUT <s>]
-#                [LABELS <labels...>] [ENVIRONMENT <VAR=value...>] [HEAVY])
+#                [LABELS <label>] [ENVIRONMENT <VAR=value...>] [HEAVY])
 # One GoogleTest executable per feature, registered with CTest test by test. HEAVY tests (many
 # processes, a simulated week, 100 MB transfers) run one at a time; light tests run beside them.
 function(icars_add_test)
-  cmake_parse_arguments(T "HEAVY" "NAME;TIMEOUT" "SOURCES;LIBS;LABELS;ENVIRONMENT" ${ARGN})
+  cmake_parse_arguments(T "HEAVY" "NAME;TIMEOUT;LABELS" "SOURCES;LIBS;ENVIRONMENT" ${ARGN})
   if(NOT ICARS_BUILD_TESTS)
     return()
   endif()
@@ -16,14 +16,21 @@ function(icars_add_test)
     set(T_TIMEOUT 120)
   endif()
   set(properties TIMEOUT ${T_TIMEOUT})
-  if(T_LABELS)
-    list(APPEND properties LABELS "${T_LABELS}")
+  # A test has one label: gtest_discover_tests cannot pass a list through. ICARS_TEST_LABEL is
+  # the label of every test of a directory (`home` under src/home, ...); a test's own LABELS are
+  # joined to it with '-' ("home-soak"), so that `ctest -L home` and `ctest -L soak` both find it.
+  set(labels ${ICARS_TEST_LABEL} ${T_LABELS})
+  list(JOIN labels "-" label)
+  if(label)
+    list(APPEND properties LABELS "${label}")
   endif()
   if(T_ENVIRONMENT)
     list(APPEND properties ENVIRONMENT "${T_ENVIRONMENT}")
   endif()
   if(T_HEAVY)
-    list(APPEND properties RESOURCE_LOCK icars_heavy_test)
+    # One at a time, and first on a fresh tree (no cost data yet), so that light tests run
+    # beside them instead of the heavy ones running alone at the end.
+    list(APPEND properties RESOURCE_LOCK icars_heavy_test COST 1000)
   endif()
   gtest_discover_tests(${T_NAME} DISCOVERY_TIMEOUT 60 PROPERTIES ${properties})
 endfunction()

@@ -13,13 +13,14 @@
 #include <string_view>
 
 #include "fuzz_util.h"
-#include "icars/behavior/house_behaviors.h"
 #include "icars/control/policy.h"
+#include "icars/home/behaviors.h"
 
 namespace {
 
 namespace b = icars::behavior;
 namespace c = icars::control;
+namespace home = icars::home;
 
 [[noreturn]] void fail(const char* what, const char* detail) {
   std::fprintf(stderr, "policy_parser_fuzz: %s: %s\n", what, detail);
@@ -40,7 +41,7 @@ void build(const c::NodeSpec& node, const b::BehaviorRegistry& registry) {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  static const b::BehaviorRegistry registry = b::house::make_house_registry();
+  static const b::BehaviorRegistry registry = home::behavior_registry();
   const std::string_view xml(reinterpret_cast<const char*>(data), size);
   try {
     const c::ParsedPolicy parsed = c::parse_policy(xml, "fuzz.xml", registry);

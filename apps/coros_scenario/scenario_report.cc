@@ -555,9 +555,8 @@ std::string ScenarioReport::to_text() const {
 }
 
 sim::PlotData ScenarioReport::plot() const {
-  using sim::SimTime;
   const auto to_time = [](double seconds) {
-    return SimTime(static_cast<SimTime::rep>(std::llround(std::max(0.0, seconds) * 1000.0)));
+    return Time(static_cast<Time::rep>(std::llround(std::max(0.0, seconds) * 1000.0)));
   };
   sim::PlotData data;
   data.title = fmt::format("COROS courier delivery: {} robots, {} deliveries", robot_count_,
@@ -567,12 +566,12 @@ sim::PlotData ScenarioReport::plot() const {
     sim::PlotTrack track;
     track.name = r.id;
     for (const auto& [t, p] : r.track) track.points.emplace_back(to_time(t), p);
-    if (track.points.empty()) track.points.emplace_back(SimTime(0), r.start_at);
+    if (track.points.empty()) track.points.emplace_back(Time(0), r.start_at);
     data.robots.push_back(std::move(track));
   }
   const auto robot_time = [&](const std::string& id, std::optional<double> wall) {
     const auto it = robots_.find(id);
-    if (it == robots_.end() || !wall) return SimTime(0);
+    if (it == robots_.end() || !wall) return Time(0);
     return to_time(sim_seconds(it->second, *wall));
   };
   for (const auto& d : deliveries_) {

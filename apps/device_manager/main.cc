@@ -26,9 +26,11 @@
 #include <set>
 #include <thread>
 
-#include "icars/device/simulated_house.h"
+#include "icars/home/sim/simulated_house.h"
 #include "icars/planet/endpoint.h"
 #include "security_options.h"
+
+namespace home = icars::home;
 
 int main(int argc, char** argv) {
   CLI::App app{"ICARS device manager for a simulated house"};
@@ -100,7 +102,7 @@ int main(int argc, char** argv) {
   }
   std::mutex effects_mutex;
 
-  icars::device::SimulatedHouseOptions options;
+  home::SimulatedHouseOptions options;
   options.speedup = speedup;
   options.devices = std::set<std::string>(only.begin(), only.end());
   options.engines = engines;
@@ -117,10 +119,10 @@ int main(int argc, char** argv) {
     }
   }
   if (effects) {
-    options.effects = [&effects, &effects_mutex](const icars::device::DeviceEffect& e) {
+    options.effects = [&effects, &effects_mutex](const home::DeviceEffect& e) {
       nlohmann::ordered_json j;
       j["t"] = e.time.count();
-      j["time"] = icars::sim::format_time(e.time);
+      j["time"] = icars::format_time(e.time);
       j["kind"] = "effect";
       j["device"] = e.device;
       j["what"] = e.what;
@@ -132,9 +134,9 @@ int main(int argc, char** argv) {
       std::fflush(effects.get());
     };
   }
-  std::unique_ptr<icars::device::SimulatedHouse> simulation;
+  std::unique_ptr<home::SimulatedHouse> simulation;
   try {
-    simulation = std::make_unique<icars::device::SimulatedHouse>(std::move(house), options);
+    simulation = std::make_unique<home::SimulatedHouse>(std::move(house), options);
   } catch (const std::exception& e) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";
     return 2;
@@ -146,7 +148,7 @@ int main(int argc, char** argv) {
     const auto simulated_now = [&] {
       const auto wall = std::chrono::duration_cast<std::chrono::milliseconds>(
           std::chrono::system_clock::now().time_since_epoch());
-      return start + icars::sim::SimTime(static_cast<std::int64_t>(static_cast<double>(wall.count() - epoch_ms) * speedup));
+      return start + icars::Time(static_cast<std::int64_t>(static_cast<double>(wall.count() - epoch_ms) * speedup));
     };
     while (simulated_now() < start) {
       const timespec wait{0, 10'000'000};
@@ -157,7 +159,7 @@ int main(int argc, char** argv) {
     simulation->clock().advance_to(simulated_now());
   }
   if (auto* state = simulation->state_file()) {
-    using Loaded = icars::device::SimStateFile::Loaded;
+    using Loaded = home::SimStateFile::Loaded;
     const auto loaded = state->loaded();
     std::cout << "STATE "
               << (loaded == Loaded::restored ? "restored" : loaded == Loaded::rejected ? "rejected" : "new")
@@ -170,7 +172,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   std::cout << "STARTED " << manager.devices().size() << " devices, simulated time "
-            << icars::sim::format_time(simulation->clock().now()) << std::endl;
+            << icars::format_time(simulation->clock().now()) << std::endl;
 
   // Report registration rounds until a stop signal arrives.
   std::atomic<bool> stopping{false};

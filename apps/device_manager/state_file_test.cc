@@ -29,6 +29,8 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace p = icars::planet;
+namespace df = icars::df;
+namespace home = icars::home;
 using namespace std::chrono_literals;
 using planet_test::wait_until;
 

@@ -57,14 +57,13 @@
 
 #include "fault_proxy.h"
 #include "house_processes.h"
-#include "icars/device/sim_state_file.h"
+#include "icars/home/sim/sim_state_file.h"
 
 namespace {
 
 using namespace icars_test;
-namespace sim = icars::sim;
-namespace device = icars::device;
 using namespace std::chrono_literals;
+namespace home = icars::home;
 using std::chrono::milliseconds;
 
 const std::string kIcars = ICARS_BINARY;
@@ -148,12 +147,12 @@ Fault draw_fault(std::mt19937_64& rng, std::size_t managers) {
 // back (registered again, or the fault lifted when the link survived).
 struct Outage {
   std::size_t manager = 0;
-  SimTime from{0}, to{0};
+  icars::Time from{0}, to{0};
 };
 
 // A change of what an occupancy sensor sees: when it happened, and when the mediator could see it.
 struct Change {
-  SimTime happened{0}, visible{0};
+  icars::Time happened{0}, visible{0};
 };
 
 // The changes the mediator could see, in the order they happened, from the day before `from`
@@ -162,19 +161,19 @@ struct Change {
 // re-reading the sensor, and only if the sensor then reads otherwise than before the outage: a
 // user who got up and sat down again meanwhile changed nothing the mediator can see.
 std::vector<Change> visible_changes(const std::vector<Moment>& moments, const std::vector<Outage>& outages,
-                                    const std::vector<Manager>& managers, SimTime from, SimTime to, SimTime guard) {
+                                    const std::vector<Manager>& managers, icars::Time from, icars::Time to, icars::Time guard) {
   std::vector<Change> out;
   std::set<std::string> furniture;
   for (const auto& m : moments) furniture.insert(m.furniture);
   for (const auto& f : furniture) {
-    std::vector<std::pair<SimTime, bool>> transitions;  // when, occupied
-    for (SimTime day = sim::kDay * (from / sim::kDay) - sim::kDay; day <= to + sim::kDay; day += sim::kDay) {
+    std::vector<std::pair<icars::Time, bool>> transitions;  // when, occupied
+    for (icars::Time day = icars::kDay * (from / icars::kDay) - icars::kDay; day <= to + icars::kDay; day += icars::kDay) {
       for (const auto& m : moments) {
         if (m.furniture == f) transitions.emplace_back(day + m.time_of_day, m.occupied);
       }
     }
     std::sort(transitions.begin(), transitions.end());
-    const auto occupied_at = [&](SimTime t) {
+    const auto occupied_at = [&](icars::Time t) {
       bool occupied = false;
       for (const auto& [at, o] : transitions) {
         if (at <= t) occupied = o;
@@ -182,12 +181,12 @@ std::vector<Change> visible_changes(const std::vector<Moment>& moments, const st
       return occupied;
     };
     // The outages of the manager of f's sensor, overlapping ones merged.
-    std::vector<std::pair<SimTime, SimTime>> windows;
+    std::vector<std::pair<icars::Time, icars::Time>> windows;
     for (const auto& o : outages) {
       if (managers[o.manager].furniture.contains(f)) windows.emplace_back(o.from - guard, o.to);
     }
     std::sort(windows.begin(), windows.end());
-    std::vector<std::pair<SimTime, SimTime>> merged;
+    std::vector<std::pair<icars::Time, icars::Time>> merged;
     for (const auto& w : windows) {
       if (!merged.empty() && w.first <= merged.back().second) {
         merged.back().second = std::max(merged.back().second, w.second);
@@ -195,7 +194,7 @@ std::vector<Change> visible_changes(const std::vector<Moment>& moments, const st
         merged.push_back(w);
       }
     }
-    std::map<std::size_t, SimTime> last_hidden;  // window -> the last change in it
+    std::map<std::size_t, icars::Time> last_hidden;  // window -> the last change in it
     for (const auto& [at, o] : transitions) {
       const auto w = std::find_if(merged.begin(), merged.end(), [at = at](const auto& win) {
         return win.first <= at && at < win.second;
@@ -236,15 +235,15 @@ std::string quoted(const std::string& s) { return fmt::format("\"{}\"", s); }
 // What a device of `type` keeps when no command has changed it (the simulated devices' defaults).
 KeptState initial_state(const std::string& type) {
   if (type == "TV") {
-    const device::SimTVState s;
+    const home::SimTVState s;
     return {{"on", s.on ? "true" : "false"}, {"channel", std::to_string(s.channel)}, {"volume", std::to_string(s.volume)}};
   }
   if (type == "Light") {
-    const device::SimLightState s;
+    const home::SimLightState s;
     return {{"on", s.on ? "true" : "false"}, {"intensity", std::to_string(s.intensity)}};
   }
   if (type == "Speaker") {
-    const device::SimSpeakerState s;
+    const home::SimSpeakerState s;
     return {{"playing", quoted(s.playing)}, {"volume", std::to_string(s.volume)}};
   }
   return {};
@@ -336,7 +335,7 @@ std::vector<Command> read_commands(const std::vector<json>& trace) {
   return commands;
 }
 
-SimTime time_of(const json& r) { return SimTime(r.value("t", std::int64_t{0})); }
+icars::Time time_of(const json& r) { return icars::Time(r.value("t", std::int64_t{0})); }
 
 }  // namespace
 
@@ -359,9 +358,9 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   const auto env = child_environment();
 
   // --- The mediator: it stops by itself at 18:00 of the last day. ---
-  const SimTime start = house.start_time;
-  const SimTime end = start + sim::kDay * s.days;
-  ASSERT_EQ(start % sim::kDay, 18h) << "the chaos test's days run 18:00 to 18:00";
+  const icars::Time start = house.start_time;
+  const icars::Time end = start + icars::kDay * s.days;
+  ASSERT_EQ(start % icars::kDay, 18h) << "the chaos test's days run 18:00 to 18:00";
   Program server(dir / "icars.stderr", env, mediator_command(kIcars, kPolicy, kHouse, s.speed, s.days, trace_file));
   std::vector<std::string> server_output;
   const std::string port = start_mediator(server, server_output);
@@ -405,7 +404,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
       for (const auto& m : managers) {
         if (m.process && m.process->exited()) {
           died = fmt::format("{} (incarnation {}) died by itself at {}; its stderr:\n{}", m.name, m.incarnation,
-                             sim::format_time(clock.now()), tail(m.process->stderr_text(), 60));
+                             icars::format_time(clock.now()), tail(m.process->stderr_text(), 60));
           return false;
         }
       }
@@ -420,21 +419,21 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   std::vector<Outage> outages;
   std::map<FaultKind, int> fault_counts;
   int faults = 0;
-  const auto uniform = [&rng](SimTime lo, SimTime hi) {
-    return SimTime(std::uniform_int_distribution<std::int64_t>(lo.count(), hi.count())(rng));
+  const auto uniform = [&rng](icars::Time lo, icars::Time hi) {
+    return icars::Time(std::uniform_int_distribution<std::int64_t>(lo.count(), hi.count())(rng));
   };
-  SimTime next = start + uniform(1h, 3h);
+  icars::Time next = start + uniform(1h, 3h);
   bool running = true;
   while (s.enabled && running) {
     const auto fault = draw_fault(rng, managers.size());
-    const SimTime span((fault.length.count() + 5000) * static_cast<std::int64_t>(s.speed));  // + time to recover
+    const icars::Time span((fault.length.count() + 5000) * static_cast<std::int64_t>(s.speed));  // + time to recover
     if (next + span > end - 3h) break;
     running = run_until(after(clock.wall(next - clock.now()) + 1s), [&] { return clock.now() >= next; });
     if (!running) break;
     auto& m = managers[fault.manager];
     auto& proxy = *proxies[fault.manager];
     const auto rounds_before = m.rounds;
-    const SimTime from = clock.now();
+    const icars::Time from = clock.now();
     switch (fault.kind) {
       case FaultKind::kill:
         m.process->signal(SIGKILL);
@@ -471,19 +470,19 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
     running = run_until(after(fault.breaks_link ? 60s : 300ms), fault.breaks_link ? std::function<bool()>(back) : never);
     if (running && fault.breaks_link && !back()) {
       failures.push_back(fmt::format("{} did not register again within 60 s after: {} at {}", m.name, fault.describe(),
-                                     sim::format_time(from)));
+                                     icars::format_time(from)));
     }
-    const SimTime to = clock.now();
+    const icars::Time to = clock.now();
     outages.push_back({fault.manager, from, to});
     ++fault_counts[fault.kind];
     ++faults;
-    std::printf("[chaos] %s %-7s %s: %s at %s\n", sim::format_time(from).c_str(), m.name.c_str(),
+    std::printf("[chaos] %s %-7s %s: %s at %s\n", icars::format_time(from).c_str(), m.name.c_str(),
                 fault.describe().c_str(), m.rounds > rounds_before ? "registered again" : "link kept",
-                sim::format_time(to).c_str());
+                icars::format_time(to).c_str());
     next = to + uniform(20min, 2h);
     if (std::bernoulli_distribution(0.3)(rng)) {  // into the evening, when the policy sends commands
-      next = sim::kDay * (to / sim::kDay) + 18h + uniform(5min, 5h);
-      while (next < to + 10min) next += sim::kDay;
+      next = icars::kDay * (to / icars::kDay) + 18h + uniform(5min, 5h);
+      while (next < to + 10min) next += icars::kDay;
     }
   }
   if (!died.empty()) FAIL() << died;
@@ -547,7 +546,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
     failed_but_ran += c.failed != kNone && n > 0;
     if (c.acknowledged != kNone && n == 0) {
       ADD_FAILURE() << "acknowledged command " << c.request << " (" << c.key() << ", acknowledged at "
-                    << sim::format_time(time_of(trace[c.acknowledged])) << ") never ran on " << c.device;
+                    << icars::format_time(time_of(trace[c.acknowledged])) << ") never ran on " << c.device;
     }
     if (n > 1 && !idempotent(c.method)) {
       ADD_FAILURE() << "command " << c.request << " (" << c.key() << ") is not idempotent but ran " << n << " times";
@@ -598,7 +597,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
                                           });
         EXPECT_TRUE(reported) << id << " ends with " << field << " " << found << ", but its last acknowledged command ("
                               << last->request << ", " << last->key() << " by " << last->behavior << ", acknowledged at "
-                              << sim::format_time(time_of(trace[last->acknowledged])) << ") left " << wanted
+                              << icars::format_time(time_of(trace[last->acknowledged])) << ") left " << wanted
                               << ", and no DeviceRestored after it reported the difference";
       }
     }
@@ -616,7 +615,7 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
                str(r, "text").find("failed:") != std::string::npos;
       });
       EXPECT_TRUE(reported) << "the mediator's own command " << c.request << " (" << c.key() << ") failed at "
-                            << sim::format_time(time_of(failure)) << " (" << str(failure, "error")
+                            << icars::format_time(time_of(failure)) << " (" << str(failure, "error")
                             << "), and no DeviceRestored record after it says so";
       continue;
     }
@@ -656,11 +655,11 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
       continue;
     }
     ADD_FAILURE() << "command " << c.request << " (" << c.key() << ") of behavior " << c.behavior << " (called at "
-                  << sim::format_time(time_of(trace[c.call])) << ") failed at " << sim::format_time(time_of(failure))
+                  << icars::format_time(time_of(trace[c.call])) << ") failed at " << icars::format_time(time_of(failure))
                   << " (" << str(failure, "error") << "), and no \"call\" record with ok=false reported it to the "
                   << "behavior"
                   << (gone ? fmt::format(": the behavior had succeeded at {} with the command still unanswered",
-                                         sim::format_time(time_of(trace[ended])))
+                                         icars::format_time(time_of(trace[ended])))
                            : std::string());
   }
 
@@ -669,16 +668,16 @@ TEST(IcarsChaos, AWeekOfKilledStoppedAndCutDeviceManagers) {
   // clock's manager was down the mediator's clock stood still (and then ran through the time
   // missed): a task stamped within such an outage started at the latest when it was back.
   const std::vector<std::vector<Change>> variants = {
-      visible_changes(moments, outages, managers, start, end, SimTime(0)),
+      visible_changes(moments, outages, managers, start, end, icars::Time(0)),
       visible_changes(moments, outages, managers, start, end, paper.jitter + 10min)};
-  const auto next_change = [&](SimTime t) {  // t: a task's start + 15 min (find_overdue_tasks)
+  const auto next_change = [&](icars::Time t) {  // t: a task's start + 15 min (find_overdue_tasks)
     for (const auto& o : outages) {
       if (managers[o.manager].simulation && o.from - 1min <= t - 15min && t - 15min <= o.to) t = std::max(t, o.to + 15min);
     }
-    SimTime latest{0};
+    icars::Time latest{0};
     for (const auto& changes : variants) {
       const auto it = std::find_if(changes.begin(), changes.end(), [t](const Change& c) { return c.happened > t; });
-      latest = std::max(latest, it == changes.end() ? SimTime::max() : it->visible);
+      latest = std::max(latest, it == changes.end() ? icars::Time::max() : it->visible);
     }
     // The clock's manager down between the task's start and that change being seen: the
     // mediator's time stood still, and what it did then is stamped when it was back.

@@ -14,11 +14,11 @@
 
 #include "announcement.h"
 #include "child_process.h"
-#include "tls_files.h"
 #include "device.planet.h"
 #include "home.planet.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/security.h"
+#include "tls_files.h"
 
 #include <spdlog/spdlog.h>
 #include <csignal>
@@ -26,6 +26,8 @@
 using nlohmann::json;
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+namespace df = icars::df;
+namespace home = icars::home;
 
 namespace {
 
@@ -234,9 +236,9 @@ TEST(IcarsSecurity, AnotherPrincipalCannotHijackTheHomesDevices) {
       return e.reason();
     }
   };
-  const auto tv = df::DeviceInfo{"tv", "TV", "living_room", "", {{"tv_control", "home::TVControl", "/evil/tv"}}};
+  const auto tv = df::DeviceInfo{"tv", "TV", "living_room", "", {{"tv_control", "icars::home::TVControl", "/evil/tv"}}};
   EXPECT_EQ(refused(tv), "device 'tv' is held by principal 'living-room'; principal 'intruder' may not take it over");
-  const auto clock = df::DeviceInfo{"simulator", "Simulator", "", "", {{"simulation", "home::Simulation", "/evil/sim"}}};
+  const auto clock = df::DeviceInfo{"simulator", "Simulator", "", "", {{"simulation", "icars::home::Simulation", "/evil/sim"}}};
   EXPECT_EQ(refused(clock),
             "device 'simulator' is held by principal 'living-room'; principal 'intruder' may not take it over");
   try {
@@ -251,7 +253,7 @@ TEST(IcarsSecurity, AnotherPrincipalCannotHijackTheHomesDevices) {
   int accepted = 0;
   std::string last;
   for (int i = 0; i < 5000 && last.find("limit") == std::string::npos; ++i) {
-    last = refused(df::DeviceInfo{"fake" + std::to_string(i), "TV", "hall", "", {{"tv_control", "home::TVControl", "/x"}}});
+    last = refused(df::DeviceInfo{"fake" + std::to_string(i), "TV", "hall", "", {{"tv_control", "icars::home::TVControl", "/x"}}});
     accepted += last == "(accepted)";
   }
   EXPECT_EQ(accepted, 32);
@@ -297,7 +299,7 @@ TEST(IcarsSecurity, SighupReloadsTheAccessFileAndRevokesRemovedPrincipals) {
   auto removed_link = removed->connect("127.0.0.1", port_number);
   ASSERT_TRUE(kept_link->wait_connected(20s) && removed_link->wait_connected(20s));
   df::DeviceRegistryPrx(*removed, removed_link, "/sf/registry")
-      .register_device(df::DeviceInfo{"removed_lamp", "Light", "hall", "", {{"light", "home::Light", "/l"}}});
+      .register_device(df::DeviceInfo{"removed_lamp", "Light", "hall", "", {{"light", "icars::home::Light", "/l"}}});
 
   const auto traced = [&](const std::string& text) {
     std::ifstream in(scratch.path("trace.jsonl"));

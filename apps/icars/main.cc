@@ -16,18 +16,19 @@
 
 #include <cstdio>
 
-#include "icars/behavior/house_behaviors.h"
 #include "icars/control/collaboration.h"
+#include "icars/home/behaviors.h"
 #include "mediator.h"
 #include "security_options.h"
 
 namespace b = icars::behavior;
 namespace c = icars::control;
+namespace home = icars::home;
 
 namespace {
 
 int validate(const std::vector<std::string>& policies, const std::string& policy_dir) {
-  const auto registry = b::house::make_house_registry();
+  const auto registry = home::behavior_registry();
   const c::PolicyRepository repository(policy_dir);
   int failed = 0;
   for (const auto& name : policies) {
@@ -56,7 +57,7 @@ int validate(const std::vector<std::string>& policies, const std::string& policy
 }
 
 void list_behaviors() {
-  const auto registry = b::house::make_house_registry();
+  const auto registry = home::behavior_registry();
   for (const auto& type : registry.types()) {
     const auto* entry = registry.find(type);
     std::printf("%s: %s\n", type.c_str(), entry->doc.c_str());

@@ -15,11 +15,11 @@
 #include <vector>
 
 #include "announcement.h"
-#include "icars/behavior/house_behaviors.h"
-#include "icars/device/simulated_house.h"
+#include "icars/home/behaviors.h"
+#include "icars/home/clock_follower.h"
+#include "icars/home/sim/simulated_house.h"
 #include "icars/report/recorders.h"
 #include "icars/report/run_summary.h"
-#include "icars/server/clock_follower.h"
 #include "icars/server/mediating_server.h"
 #include "icars/sim/svg_plot.h"
 
@@ -32,7 +32,7 @@ using namespace std::chrono_literals;
 
 namespace {
 
-b::TraceRecord note(sim::SimTime t, std::string text) {
+b::TraceRecord note(Time t, std::string text) {
   b::TraceRecord r;
   r.time = t;
   r.kind = "note";
@@ -43,7 +43,7 @@ b::TraceRecord note(sim::SimTime t, std::string text) {
 
 // SIGHUP: reads the access file again and puts it in force; principals removed or changed lose
 // their links, and those removed their devices. A broken file changes nothing.
-void reload_access(const RunOptions& options, server::MediatingServer& server, sim::SimTime now,
+void reload_access(const RunOptions& options, server::MediatingServer& server, Time now,
                    const std::string& house_token) {
   const auto current = server.access();
   if (options.access_file.empty() || !current) {
@@ -68,22 +68,22 @@ void reload_access(const RunOptions& options, server::MediatingServer& server, s
 
 // The stop time: `until` on the house's first day (the next day when that is not after the
 // start), `days - 1` days later.
-sim::SimTime stop_time(sim::SimTime start, sim::SimTime until, int days) {
-  const auto day = sim::kDay * (start / sim::kDay);
+Time stop_time(Time start, Time until, int days) {
+  const auto day = kDay * (start / kDay);
   auto stop_at = day + until;
-  if (stop_at <= start) stop_at += sim::kDay;
-  return stop_at + sim::kDay * (days - 1);  // the house's daily schedule repeats
+  if (stop_at <= start) stop_at += kDay;
+  return stop_at + kDay * (days - 1);  // the house's daily schedule repeats
 }
 
 // What the embedded house's world does, in the trace: effects on devices, robots and users.
-device::SimulatedHouseOptions embedded_house(const RunOptions& options, b::Trace& trace, const std::string& token) {
-  device::SimulatedHouseOptions house_options;
+home::SimulatedHouseOptions embedded_house(const RunOptions& options, b::Trace& trace, const std::string& token) {
+  home::SimulatedHouseOptions house_options;
   house_options.speedup = options.speed;
   house_options.pun = "house-devices";
   house_options.tls = options.tls;
   house_options.token = token;
   house_options.logger = spdlog::default_logger();
-  house_options.effects = [&trace](const device::DeviceEffect& e) {
+  house_options.effects = [&trace](const home::DeviceEffect& e) {
     b::TraceRecord r;
     r.time = e.time;
     r.kind = "effect";
@@ -149,7 +149,9 @@ int run(const RunOptions& options) {
   server::ServerOptions server_options;
   server_options.listen = options.listen;
   server_options.policy_dir = options.policy_dir;
-  server_options.behaviors = b::house::make_house_registry();
+  server_options.behaviors = home::behavior_registry();
+  server_options.adaptors = home::adaptors();
+  server_options.composers = {home::composer()};
   server_options.planet.logger = spdlog::default_logger();
   server_options.planet.tls = options.tls;
   const c::PolicyRepository repository(options.policy_dir);
@@ -162,7 +164,7 @@ int run(const RunOptions& options) {
     for (const auto& d : e.diagnostics()) std::fprintf(stderr, "%s\n", d.to_string().c_str());
     return 2;
   }
-  const auto until = sim::parse_time_of_day(options.until);
+  const auto until = parse_time_of_day(options.until);
   if (!until) return fail(2, fmt::format("--until {} is not a time of day (HH:MM)", options.until));
   const auto stop_at = stop_time(house.start_time, *until, options.days);
   // The embedded house authenticates with a token made for this run.
@@ -218,22 +220,22 @@ int run(const RunOptions& options) {
   std::printf("%s\n", app::server_announcement(host, bound, repository.path_of(options.policy), house.name).c_str());
 
   // --- The house: simulated device managers in this process, or elsewhere. -------------------
-  std::unique_ptr<device::SimulatedHouse> home;
-  std::unique_ptr<sim::SimClock> own_clock;
+  std::unique_ptr<home::SimulatedHouse> simulated;
+  std::unique_ptr<SimClock> own_clock;
   std::vector<std::uint64_t> world_listeners;
-  sim::SimClock* clock = nullptr;
+  SimClock* clock = nullptr;
   if (!options.external) {
-    home = std::make_unique<device::SimulatedHouse>(house, embedded_house(options, trace, house_token));
-    world_listeners = trace_world(home->world(), trace);
-    home->start("127.0.0.1", bound);
-    if (!home->manager().wait_registered(1, 30s)) {
-      return fail(1, fmt::format("the house's devices did not register: {}", home->manager().last_error()));
+    simulated = std::make_unique<home::SimulatedHouse>(house, embedded_house(options, trace, house_token));
+    world_listeners = trace_world(simulated->world(), trace);
+    simulated->start("127.0.0.1", bound);
+    if (!simulated->manager().wait_registered(1, 30s)) {
+      return fail(1, fmt::format("the house's devices did not register: {}", simulated->manager().last_error()));
     }
-    clock = &home->clock();
-    std::printf("[icars] %zu devices registered, %zu services\n", home->manager().devices().size(),
+    clock = &simulated->clock();
+    std::printf("[icars] %zu devices registered, %zu services\n", simulated->manager().devices().size(),
                 server->container().all().size());
   } else {
-    own_clock = std::make_unique<sim::SimClock>(house.start_time);
+    own_clock = std::make_unique<SimClock>(house.start_time);
     clock = own_clock.get();
     std::printf("[icars] waiting for device managers (icars-device-manager --server %s:%u)\n", host.c_str(), bound);
   }
@@ -248,8 +250,8 @@ int run(const RunOptions& options) {
       stamp.set(nullptr);
     }
   } release_clock{*server, stamp};
-  std::unique_ptr<server::ClockFollower> follower;
-  if (own_clock) follower = std::make_unique<server::ClockFollower>(*own_clock, server->container());
+  std::unique_ptr<home::ClockFollower> follower;
+  if (own_clock) follower = std::make_unique<home::ClockFollower>(*own_clock, server->container());
   report::ServiceRecorder heard(server->container(), trace, options.external);
   server->use_clock(*clock);
 
@@ -291,8 +293,8 @@ int run(const RunOptions& options) {
   // The run is over: the house's devices going away with it are no outage to report.
   device_events.stop();
   spdlog::set_level(spdlog::level::err);
-  if (home) {
-    for (const auto id : world_listeners) home->world().remove_listener(id);
+  if (simulated) {
+    for (const auto id : world_listeners) simulated->world().remove_listener(id);
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 

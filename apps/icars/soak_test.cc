@@ -42,7 +42,6 @@
 namespace {
 
 using namespace icars_test;
-namespace sim = icars::sim;
 using namespace std::chrono_literals;
 
 const std::string kIcars = ICARS_BINARY;
@@ -77,7 +76,7 @@ Memory read_memory(pid_t pid) {
 
 struct Action {
   enum Kind { kill, restart, sample } kind;
-  SimTime at;
+  icars::Time at;
   std::size_t manager = 0;  // kill, restart
   int day = 0;              // sample
 };
@@ -89,13 +88,13 @@ struct Action {
 // state only when it binds), and the day's cycle would legitimately differ. The manager of the
 // Simulation device avoids every moment: while it is down the mediator's clock stands still.
 std::vector<Action> plan(std::mt19937_64& rng, std::vector<Manager>& managers, const std::vector<Moment>& moments,
-                         SimTime start, SimTime end, SimTime restart, SimTime jitter) {
-  const auto uniform = [&rng](SimTime lo, SimTime hi) {
-    return SimTime(std::uniform_int_distribution<std::int64_t>(lo.count(), hi.count())(rng));
+                         icars::Time start, icars::Time end, icars::Time restart, icars::Time jitter) {
+  const auto uniform = [&rng](icars::Time lo, icars::Time hi) {
+    return icars::Time(std::uniform_int_distribution<std::int64_t>(lo.count(), hi.count())(rng));
   };
   std::vector<Action> actions;
-  const SimTime guard = jitter + 10min;
-  SimTime t = start + uniform(1h, 4h);
+  const icars::Time guard = jitter + 10min;
+  icars::Time t = start + uniform(1h, 4h);
   while (t < end - 2h) {
     const auto m = std::uniform_int_distribution<std::size_t>(0, managers.size() - 1)(rng);
     const auto pause = uniform(1min, 20min);
@@ -138,9 +137,9 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   const auto env = child_environment();
 
   // --- The server: it stops by itself at 18:00 of the last day. ---
-  const SimTime start = house.start_time;
-  const SimTime end = start + sim::kDay * s.days;  // the house starts at 18:00: --until 18:00
-  ASSERT_EQ(start % sim::kDay, 18h) << "the soak's days run 18:00 to 18:00";
+  const icars::Time start = house.start_time;
+  const icars::Time end = start + icars::kDay * s.days;  // the house starts at 18:00: --until 18:00
+  ASSERT_EQ(start % icars::kDay, 18h) << "the soak's days run 18:00 to 18:00";
   Program server(dir / "icars.stderr", env, mediator_command(kIcars, kPolicy, kHouse, s.speed, s.days, trace_file));
   std::vector<std::string> server_output;
   const std::string port = start_mediator(server, server_output);
@@ -167,9 +166,9 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   }, 60s)) << "the device managers did not register";
 
   // --- The plan: kills and restarts, and a memory sample every day at 12:00. ---
-  const SimTime restart_allowance(static_cast<std::int64_t>(2000 * s.speed));  // 2 s of wall time
+  const icars::Time restart_allowance(static_cast<std::int64_t>(2000 * s.speed));  // 2 s of wall time
   auto actions = s.enabled ? plan(rng, managers, moments, start, end, restart_allowance, paper.jitter) : std::vector<Action>{};
-  for (int day = 1; day <= s.days; ++day) actions.push_back({Action::sample, start + sim::kDay * day - 6h, 0, day});
+  for (int day = 1; day <= s.days; ++day) actions.push_back({Action::sample, start + icars::kDay * day - 6h, 0, day});
   std::stable_sort(actions.begin(), actions.end(), [](const Action& a, const Action& b) { return a.at < b.at; });
 
   std::map<int, Memory> memory;
@@ -186,7 +185,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
       pump();
       if (const auto* m = crashed()) {
         FAIL() << m->name << " (incarnation " << m->incarnation << ") died by itself at "
-               << sim::format_time(sim_now()) << "; its stderr:\n" << tail(m->process->stderr_text(), 60);
+               << icars::format_time(sim_now()) << "; its stderr:\n" << tail(m->process->stderr_text(), 60);
       }
       std::this_thread::sleep_for(2ms);
     }
@@ -223,12 +222,12 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
 
   // --- What the server did, from its trace. ---
   const auto trace = read_json_lines(trace_file);
-  const auto day_of = [&](SimTime t) { return static_cast<int>((t - start) / sim::kDay) + 1; };  // 18:00 to 18:00
+  const auto day_of = [&](icars::Time t) { return static_cast<int>((t - start) / icars::kDay) + 1; };  // 18:00 to 18:00
   std::map<int, std::map<std::string, int>> tasks_per_day;   // day -> task -> runs started
   std::map<int, std::map<std::string, int>> states_per_day;  // day -> state -> times entered
   std::map<int, int> behaviors_per_day, failed_per_day, heard_per_day, waypoints_per_day;
   for (const auto& r : trace) {
-    const SimTime t(r.value("t", std::int64_t{0}));
+    const icars::Time t(r.value("t", std::int64_t{0}));
     const auto kind = str(r, "kind");
     const auto event = str(r, "event");
     if (kind == "state" && event == "enter") ++states_per_day[day_of(t)][str(r, "state")];
@@ -242,7 +241,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   // jitter and the user's walk) after the moment that should end it. The run ends during
   // Observation.
   auto tasks = follow_tasks(trace);
-  find_overdue_tasks(tasks, [&](SimTime t) { return next_moment(moments, t); }, paper.jitter + 45min, end);
+  find_overdue_tasks(tasks, [&](icars::Time t) { return next_moment(moments, t); }, paper.jitter + 45min, end);
   const auto& stuck = tasks.stuck;
 
   // --- The figures. ---
@@ -270,7 +269,7 @@ TEST(IcarsSoak, AWeekWithDeviceManagersKilledAndRestarted) {
   for (const auto& m : managers) {
     std::printf("[soak] %-8s killed %d times, registered again %d times; outages (simulated):", m.name.c_str(), m.kills,
                 m.registrations - 1);
-    for (const auto& [from, to] : m.outages) std::printf(" %s-%s", sim::format_time(from).c_str(), sim::format_time(to).substr(3).c_str());
+    for (const auto& [from, to] : m.outages) std::printf(" %s-%s", icars::format_time(from).c_str(), icars::format_time(to).substr(3).c_str());
     std::printf("\n");
   }
   std::printf("[soak] %d kills, %d re-registrations (median %.0f ms, max %.0f ms after the restart), "

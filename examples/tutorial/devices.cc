@@ -5,9 +5,9 @@ namespace tutorial {
 namespace p = icars::planet;
 
 void SimFan::set_speed(std::int32_t percent, const p::Current&) {
-  // A declared exception travels to the caller as the generated home::OutOfRange.
+  // A declared exception travels to the caller as the generated icars::home::OutOfRange.
   if (percent < 0 || percent > 100)
-    throw home::OutOfRange("speed", percent, 0, 100, "a fan runs at 0-100%");
+    throw icars::home::OutOfRange("speed", percent, 0, 100, "a fan runs at 0-100%");
   {
     std::lock_guard lock(mutex_);
     if (speed_ == percent) return;
@@ -23,8 +23,8 @@ std::int32_t SimFan::current_speed() const {
   return speed_;
 }
 
-SimThermometer::SimThermometer(std::string device, std::string room, icars::sim::SimClock& clock,
-                               double celsius, icars::sim::SimTime period)
+SimThermometer::SimThermometer(std::string device, std::string room, icars::Clock& clock,
+                               double celsius, icars::Time period)
     : device_(std::move(device)),
       room_(std::move(room)),
       clock_(clock),

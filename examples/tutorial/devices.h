@@ -12,8 +12,8 @@
 #include <string>
 
 #include "fan.planet.h"
+#include "icars/clock/clock.h"
 #include "icars/planet/publisher.h"
-#include "icars/sim/clock.h"
 
 namespace tutorial {
 
@@ -38,8 +38,8 @@ class SimFan final : public FanServant {
 // TemperatureEvent to its subscribers when the reading changed.
 class SimThermometer final : public ThermometerServant {
  public:
-  SimThermometer(std::string device, std::string room, icars::sim::SimClock& clock, double celsius,
-                 icars::sim::SimTime period = std::chrono::minutes(1));
+  SimThermometer(std::string device, std::string room, icars::Clock& clock, double celsius,
+                 icars::Time period = std::chrono::minutes(1));
   ~SimThermometer() override;  // stops reading; the clock must not be advancing meanwhile
 
   double celsius(const icars::planet::Current& current) override;
@@ -55,8 +55,8 @@ class SimThermometer final : public ThermometerServant {
 
   std::string device_;
   std::string room_;
-  icars::sim::SimClock& clock_;
-  icars::sim::SimTime period_;
+  icars::Clock& clock_;
+  icars::Time period_;
   icars::planet::Publisher<TemperatureEvent> events_{TemperatureListener::on_temperature};
   mutable std::mutex mutex_;
   double room_celsius_;

@@ -20,6 +20,7 @@
 
 #include "cool_down.h"
 #include "devices.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
 #include "icars/server/mediating_server.h"
 #include "services.h"
@@ -27,7 +28,6 @@
 namespace b = icars::behavior;
 namespace c = icars::control;
 namespace p = icars::planet;
-namespace sim = icars::sim;
 using namespace std::chrono_literals;
 
 namespace {
@@ -58,7 +58,7 @@ p::CommunicatorOptions quiet(std::string name) {
 int run(const std::string& policy_file) {
   spdlog::set_level(spdlog::level::warn);
 
-  sim::SimClock clock(sim::at_time(0, 12, 0));  // day 0, noon
+  icars::SimClock clock(icars::at_time(0, 12, 0));  // day 0, noon
 
   // --- The mediating server, taught the new behavior and adaptors. ---
   icars::server::ServerOptions options;
@@ -124,7 +124,7 @@ int run(const std::string& policy_file) {
     };
   };
   // The weather: the room reaches `celsius` at `at`; the thermometer reads it a minute later.
-  auto weather = [&](sim::SimTime at, double celsius) {
+  auto weather = [&](icars::Time at, double celsius) {
     clock.advance_to(at);
     thermometer->set_room_temperature(celsius);
     clock.advance_by(1min);
@@ -138,7 +138,7 @@ int run(const std::string& policy_file) {
 
   // 14:00, the afternoon sun: 28.5 C. The fan starts and the statechart moves to Cooling, whose
   // CoolDown (hot=24) takes over the running fan.
-  weather(sim::at_time(0, 14, 0), 28.5);
+  weather(icars::at_time(0, 14, 0), 28.5);
   wait_for("Cooling to take over the fan", task_event("Cool", "TooHot", "28.5"));
   expect(coordinator->current() == "Cooling",
          "at 14:01 the state is " + coordinator->current() + ", not Cooling");
@@ -146,7 +146,7 @@ int run(const std::string& policy_file) {
          fmt::format("at 14:01 the fan runs at {}%, not 100%", fan->current_speed()));
 
   // 16:00, 25 C: below Watch's 26 but above Cooling's 24, so the fan keeps running.
-  weather(sim::at_time(0, 16, 0), 25.0);
+  weather(icars::at_time(0, 16, 0), 25.0);
   wait_for("the fan to stay on at 25 C", [](const b::TraceRecord& r) {
     return r.kind == "note" && r.source == "Cool/CoolDown" &&
            r.text.ends_with("25.0 C: the fan stays on");
@@ -156,7 +156,7 @@ int run(const std::string& policy_file) {
   expect(fan->current_speed() == 100, "the fan stopped at 25 C");
 
   // 18:00, evening: 23.5 C. The fan stops and the statechart returns to Normal.
-  weather(sim::at_time(0, 18, 0), 23.5);
+  weather(icars::at_time(0, 18, 0), 23.5);
   wait_for("Normal to watch again", task_event("Watch", "Comfortable", "23.5"));
   expect(coordinator->current() == "Normal",
          "at 18:01 the state is " + coordinator->current() + ", not Normal");

@@ -13,7 +13,7 @@ namespace tutorial {
 // An actuator: the service is the capability's proxy, bound while its device is connected.
 class FanService final : public icars::service::AdaptorOf<FanPrx> {
  public:
-  FanService(const df::DeviceInfo& device, const df::CapabilityInfo& capability)
+  FanService(const icars::df::DeviceInfo& device, const icars::df::CapabilityInfo& capability)
       : AdaptorOf("Fan", device, capability) {}
 };
 
@@ -23,7 +23,7 @@ class ThermometerService final
     : public icars::service::SensorAdaptor<ThermometerPrx, TemperatureListener, TemperatureEvent,
                                            TemperatureListener::on_temperature> {
  public:
-  ThermometerService(const df::DeviceInfo& device, const df::CapabilityInfo& capability)
+  ThermometerService(const icars::df::DeviceInfo& device, const icars::df::CapabilityInfo& capability)
       : SensorAdaptor("Thermometer", device, capability) {}
 };
 

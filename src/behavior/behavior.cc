@@ -168,7 +168,7 @@ void Behavior::propagate(Event e) {
   }
 }
 
-std::uint64_t Behavior::after(sim::SimTime delay, std::function<void()> fn) {
+std::uint64_t Behavior::after(Time delay, std::function<void()> fn) {
   auto id = std::make_shared<std::uint64_t>(0);
   *id = env_->runtime.start_timer(delay, guard_call([this, id, fn = std::move(fn)] {
     timers_.erase(*id);

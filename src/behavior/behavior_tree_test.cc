@@ -11,10 +11,11 @@
 #include "icars/behavior/behavior.h"
 #include "icars/behavior/composite.h"
 #include "icars/behavior/registry.h"
+#include "icars/clock/sim_clock.h"
 
 namespace b = icars::behavior;
 namespace s = icars::service;
-using icars::sim::SimTime;
+using icars::Time;
 using namespace std::chrono_literals;
 
 namespace {
@@ -145,7 +146,7 @@ class Harness : public b::Owner {
     reason = child.failure_reason();
   }
 
-  icars::sim::SimClock clock{SimTime{0}};
+  icars::SimClock clock{Time{0}};
   b::Runtime runtime;
   s::ServiceContainer services;
   b::Trace trace;
@@ -253,7 +254,7 @@ TEST(Propagation, AggregateEmitsOnceEnoughEventsArriveWithinTheWindow) {
   spec.when = b::Condition::parse("event == 'Ping'");
   spec.emit = "Burst";
   spec.count = 3;
-  spec.window = SimTime(60'000);
+  spec.window = Time(60'000);
   auto aggregate = named(std::make_unique<b::AggregateBehavior>(spec), "aggregate");
   aggregate->add_child(node<PingRelay>("relay"));
   auto sensor = std::make_shared<PingSensor>();
@@ -514,6 +515,6 @@ TEST(Registry, ChecksParametersAgainstTheDeclaredOnes) {
   }
   auto emit = registry.create("Emit", "", {{"event", "X"}});
   EXPECT_EQ(emit->params().string("delay"), "0s");  // default filled in
-  EXPECT_THROW(registry.add("Wait", "again", {}, [](const b::Params&) { return std::make_unique<b::WaitBehavior>(SimTime(1)); }),
+  EXPECT_THROW(registry.add("Wait", "again", {}, [](const b::Params&) { return std::make_unique<b::WaitBehavior>(Time(1)); }),
                std::invalid_argument);
 }

@@ -8,7 +8,7 @@ namespace icars::behavior {
 
 namespace {
 
-ConditionScope scope_for(sim::SimTime now, const Behavior& from) {
+ConditionScope scope_for(Time now, const Behavior& from) {
   ConditionScope scope;
   scope.now = now;
   scope.variables.emplace("child", from.name());

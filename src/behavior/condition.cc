@@ -418,7 +418,7 @@ class Parser {
       while (pos_ < text_.size() && (is_digit(text_[pos_]) || text_[pos_] == ':')) ++pos_;
       while (pos_ < text_.size() && is_name_char(text_[pos_])) ++pos_;  // "07:00pm" is one token
       const std::string_view word = text_.substr(start, pos_ - start);
-      const auto time = sim::parse_time_of_day(word);
+      const auto time = parse_time_of_day(word);
       if (!time) {
         fail(start, quoted(word) +
                         " is not a time of day (expected HH:MM or HH:MM:SS, hours "
@@ -530,7 +530,7 @@ ConditionValue property_value(const planet::Value& v) {
 
 ConditionValue resolve(std::string_view name, const planet::Event& event,
                        const ConditionScope& scope) {
-  const auto day_ms = sim::kDay.count();
+  const auto day_ms = kDay.count();
   if (name == "event") return event.type();
   if (name == "time") {
     return static_cast<double>(((scope.now.count() % day_ms) + day_ms) % day_ms);

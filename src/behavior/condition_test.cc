@@ -14,7 +14,6 @@
 namespace icars::behavior {
 namespace {
 
-using sim::at_time;
 
 // A value as the test reads it: absent, true/false, a number in shortest form, 'text'.
 std::string show(const ConditionValue& v) {

@@ -80,7 +80,7 @@ bool parse_boolean(std::string_view name, std::string_view text) {
   throw ParamError(fmt::format("parameter '{}': '{}' is not a boolean (true or false)", name, text));
 }
 
-sim::SimTime parse_duration(std::string_view name, std::string_view text) {
+Time parse_duration(std::string_view name, std::string_view text) {
   const auto s = trim(text);
   std::size_t split = 0;
   while (split < s.size() && (std::isdigit(static_cast<unsigned char>(s[split])) || s[split] == '.')) {
@@ -97,11 +97,11 @@ sim::SimTime parse_duration(std::string_view name, std::string_view text) {
     throw ParamError(fmt::format(
         "parameter '{}': '{}' is not a duration (a number with ms, s, min or h: 30s, 5min)", name, text));
   }
-  return sim::SimTime(static_cast<std::int64_t>(std::llround(*number * scale)));
+  return Time(static_cast<std::int64_t>(std::llround(*number * scale)));
 }
 
-sim::SimTime parse_time_param(std::string_view name, std::string_view text) {
-  if (auto t = sim::parse_time_of_day(trim(text))) return *t;
+Time parse_time_param(std::string_view name, std::string_view text) {
+  if (auto t = parse_time_of_day(trim(text))) return *t;
   throw ParamError(fmt::format("parameter '{}': '{}' is not a time of day (HH:MM)", name, text));
 }
 
@@ -137,8 +137,8 @@ const std::string& Params::string(std::string_view name) const {
 double Params::number(std::string_view name) const { return parse_number(name, string(name)); }
 long long Params::integer(std::string_view name) const { return parse_integer(name, string(name)); }
 bool Params::boolean(std::string_view name) const { return parse_boolean(name, string(name)); }
-sim::SimTime Params::duration(std::string_view name) const { return parse_duration(name, string(name)); }
-sim::SimTime Params::time_of_day(std::string_view name) const {
+Time Params::duration(std::string_view name) const { return parse_duration(name, string(name)); }
+Time Params::time_of_day(std::string_view name) const {
   return parse_time_param(name, string(name));
 }
 std::vector<std::string> Params::list(std::string_view name) const { return parse_list(string(name)); }

@@ -16,7 +16,7 @@ struct Runtime::TimerTable {
   std::unordered_map<std::uint64_t, std::uint64_t> clock_ids;  // timer id -> clock event id
 };
 
-Runtime::Runtime(sim::SimClock& clock)
+Runtime::Runtime(Clock& clock)
     : clock_(clock), work_(io_.get_executor()), timers_(std::make_shared<TimerTable>()) {
   thread_ = std::thread([this] { io_.run(); });
 }
@@ -67,7 +67,7 @@ bool Runtime::drain(std::chrono::milliseconds timeout) {
   return false;
 }
 
-std::uint64_t Runtime::start_timer(sim::SimTime delay, std::function<void()> fn) {
+std::uint64_t Runtime::start_timer(Time delay, std::function<void()> fn) {
   std::lock_guard lock(timers_->mutex);
   const auto id = timers_->next++;
   std::weak_ptr<TimerTable> table = timers_;

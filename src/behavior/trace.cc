@@ -40,7 +40,7 @@ std::optional<bool> TraceRecord::flag(std::string_view name) const { return type
 std::string TraceRecord::to_json() const {
   nlohmann::ordered_json j;
   j["t"] = time.count();
-  j["time"] = sim::format_time(time);
+  j["time"] = format_time(time);
   j["kind"] = kind;
   j["source"] = source;
   j["text"] = text;
@@ -66,7 +66,7 @@ void Trace::record(TraceRecord record) {
 Trace::Sink timeline_printer(std::FILE* out, std::vector<std::string> quiet) {
   return [out, quiet = std::move(quiet)](const TraceRecord& r) {
     if (std::find(quiet.begin(), quiet.end(), r.kind) != quiet.end()) return;
-    const auto line = fmt::format("[{}] {:<10} {}\n", sim::format_time(r.time), r.kind, r.text);
+    const auto line = fmt::format("[{}] {:<10} {}\n", format_time(r.time), r.kind, r.text);
     std::fputs(line.c_str(), out);
     std::fflush(out);
   };

@@ -55,7 +55,7 @@ void Task::start() {
       running_ = false;
       b::Event failed{std::string(kTaskFailed)};
       failed.set("reason", fmt::format("task {} still running after {}", spec_.name,
-                                       sim::format_time(*spec_.timeout).substr(3)));
+                                       format_time(*spec_.timeout).substr(3)));
       raise(std::move(failed));
     });
   }

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "icars/behavior/composite.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/control/collaboration.h"
 #include "icars/control/coordinator.h"
 
@@ -14,7 +15,7 @@
 
 namespace b = icars::behavior;
 namespace c = icars::control;
-using icars::sim::SimTime;
+using icars::Time;
 using namespace std::chrono_literals;
 
 namespace {
@@ -30,7 +31,7 @@ class FailLater final : public b::Behavior {
   }
 
  private:
-  SimTime after_;
+  Time after_;
 };
 
 // Counts live instances, so tests see trees being destroyed.
@@ -55,7 +56,7 @@ struct Fixture {
     settle();
     return coordinator;
   }
-  void advance(SimTime d) {
+  void advance(Time d) {
     clock.advance_by(d);
     settle();
   }
@@ -66,7 +67,7 @@ struct Fixture {
     return out;
   }
 
-  icars::sim::SimClock clock{SimTime{0}};
+  icars::SimClock clock{Time{0}};
   b::Runtime runtime;
   icars::service::ServiceContainer services;
   b::Trace trace;
@@ -114,7 +115,7 @@ TEST(Coordinator, TaskEventsMoveTheStatechartAndLeavingAStateDestroysItsTask) {
 
 TEST(Coordinator, GuardsChooseBetweenTransitionsOnTheSameEvent) {
   Fixture f;
-  f.clock.advance_to(icars::sim::at_time(0, 20, 0));
+  f.clock.advance_to(icars::at_time(0, 20, 0));
   auto coordinator = f.start(R"xml(
     <policy name="p">
       <task name="Tick" events="Tick">

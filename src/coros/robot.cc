@@ -87,7 +87,7 @@ sim::House alone_on(sim::House map, const SimRobotOptions& o) {
 SimRobot::SimRobot(sim::House map, SimRobotOptions options)
     : options_(std::move(options)), clock_(map.start_time), last_(options_.start.position()) {
   sim::WorldOptions world_options;
-  world_options.report_every = sim::SimTime{200};
+  world_options.report_every = Time{200};
   world_ = std::make_unique<sim::World>(alone_on(std::move(map), options_), clock_, world_options);
   track_.emplace_back(clock_.now(), last_);
   listener_ = world_->on_robot_pose([this](const std::string&, const sim::Pose& pose, bool) {
@@ -96,7 +96,7 @@ SimRobot::SimRobot(sim::House map, SimRobotOptions options)
     last_ = pose.position();
     track_.emplace_back(clock_.now(), last_);
   });
-  driver_ = std::make_unique<sim::RealTimeDriver>(clock_, options_.speedup);
+  driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
   driver_->start();
 }
 
@@ -143,7 +143,7 @@ double SimRobot::clock_seconds() const {
   return std::chrono::duration<double>(clock_.now() - world_->house().start_time).count();
 }
 
-std::vector<std::pair<sim::SimTime, sim::Point>> SimRobot::track() const {
+std::vector<std::pair<Time, sim::Point>> SimRobot::track() const {
   std::lock_guard lock(mutex_);
   return track_;
 }

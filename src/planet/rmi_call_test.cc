@@ -72,9 +72,9 @@ TEST_F(RmiCall, EveryTypeRoundTrips) {
   EXPECT_EQ(back, ev);
   EXPECT_EQ(back.get<std::int32_t>("level"), 70);
 
-  const RemoteException ex("home::Busy", "try later", Properties().set("retry_ms", std::int32_t{5}));
+  const RemoteException ex("icars::home::Busy", "try later", Properties().set("retry_ms", std::int32_t{5}));
   const RemoteException exb = e.call(Echo::echo_exception, ex);
-  EXPECT_EQ(exb.type_id(), "home::Busy");
+  EXPECT_EQ(exb.type_id(), "icars::home::Busy");
   EXPECT_EQ(exb.properties().get<std::int32_t>("retry_ms"), 5);
 
   const ObjectRef ref{"robot:1", "/robot/wheels", "nav::Wheels"};

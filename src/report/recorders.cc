@@ -2,15 +2,15 @@
 
 #include <fmt/format.h>
 
+#include "icars/home/services.h"
 #include "icars/planet/error.h"
 #include "icars/service/adaptor.h"
-#include "icars/service/composite.h"
 
 namespace icars::report {
 
 namespace {
 
-behavior::TraceRecord record(sim::SimTime t, std::string kind, std::string source, std::string text) {
+behavior::TraceRecord record(Time t, std::string kind, std::string source, std::string text) {
   behavior::TraceRecord r;
   r.time = t;
   r.kind = std::move(kind);
@@ -21,14 +21,14 @@ behavior::TraceRecord record(sim::SimTime t, std::string kind, std::string sourc
 
 }  // namespace
 
-void TraceClock::set(const sim::SimClock* clock) {
+void TraceClock::set(const Clock* clock) {
   std::lock_guard lock(mutex_);
   clock_ = clock;
 }
 
-sim::SimTime TraceClock::now() const {
+Time TraceClock::now() const {
   std::lock_guard lock(mutex_);
-  return clock_ ? clock_->now() : sim::SimTime(0);
+  return clock_ ? clock_->now() : Time(0);
 }
 
 // --- CommandRecorder ----------------------------------------------------------------------------
@@ -133,19 +133,19 @@ ServiceRecorder::~ServiceRecorder() {
 void ServiceRecorder::observe(const std::shared_ptr<service::Service>& service) {
   std::lock_guard lock(mutex_);
   if (!seen_.insert(service->id()).second) return;
-  if (auto speech = std::dynamic_pointer_cast<service::SpeechSensor>(service)) {
-    const auto id = speech->subscribe([this](const service::SpeechEvent& e) {
+  if (auto speech = std::dynamic_pointer_cast<home::SpeechSensor>(service)) {
+    const auto id = speech->subscribe([this](const home::SpeechEvent& e) {
       ++heard_;
-      auto r = record(sim::SimTime(e.time_ms), "speech", e.device,
+      auto r = record(Time(e.time_ms), "speech", e.device,
                       fmt::format("{} heard \"{}\" ({:.0f}% sure)", e.device, e.text, e.confidence * 100));
       r.with("words", e.text).with("device", e.device).with("confidence", e.confidence);
       trace_.record(std::move(r));
     });
     releases_.push_back([speech, id] { speech->unsubscribe(id); });
   }
-  if (auto nav = std::dynamic_pointer_cast<service::NavigationService>(service); nav && positions_) {
+  if (auto nav = std::dynamic_pointer_cast<home::NavigationService>(service); nav && positions_) {
     const auto id = nav->subscribe([this](const home::PositionEvent& e) {
-      auto r = record(sim::SimTime(e.time_ms), "robot", e.robot,
+      auto r = record(Time(e.time_ms), "robot", e.robot,
                       fmt::format("{} at ({:.2f}, {:.2f}){}", e.robot, e.x, e.y, e.moving ? " moving" : ""));
       r.with("robot", e.robot).with("x", e.x).with("y", e.y).with("moving", e.moving);
       trace_.record(std::move(r));

@@ -17,11 +17,11 @@ RunCounts RunSummary::counts() const {
   return counts_;
 }
 
-std::vector<RunSummary::StateTime> RunSummary::states(sim::SimTime to) const {
+std::vector<RunSummary::StateTime> RunSummary::states(Time to) const {
   std::lock_guard lock(mutex_);
   std::vector<StateTime> out;
   for (const auto& name : order_) {
-    StateTime s{name, 0, sim::SimTime(0)};
+    StateTime s{name, 0, Time(0)};
     if (const auto it = states_.find(name); it != states_.end()) {
       s.entered = it->second.first;
       s.spent = it->second.second;
@@ -42,11 +42,11 @@ std::map<std::string, std::string> RunSummary::device_states() const {
   return device_state_;
 }
 
-void RunSummary::print(std::FILE* out, const std::string& policy, sim::SimTime from, sim::SimTime to,
+void RunSummary::print(std::FILE* out, const std::string& policy, Time from, Time to,
                        double wall_seconds, double speed) const {
   const auto c = counts();
   std::fprintf(out, "\n=== summary: policy %s, %s to %s (%.0f min simulated in %.1f s, %.0fx) ===\n", policy.c_str(),
-               sim::format_time(from).c_str(), sim::format_time(to).c_str(),
+               format_time(from).c_str(), format_time(to).c_str(),
                static_cast<double>((to - from).count()) / 60000.0, wall_seconds, speed);
   std::fprintf(out, "states (%d transitions):\n", c.transitions);
   for (const auto& s : states(to)) {
@@ -85,7 +85,7 @@ sim::PlotData RunSummary::plot(const std::string& title, const sim::House& house
       sim::PlotMark mark;
       mark.time = r.time;
       mark.at = robot_at;
-      mark.label = fmt::format("{} {}", sim::format_time(r.time).substr(3, 5), r.field("to"));
+      mark.label = fmt::format("{} {}", format_time(r.time).substr(3, 5), r.field("to"));
       data.marks.push_back(std::move(mark));
     }
   }
@@ -116,7 +116,7 @@ void RunSummary::add(const behavior::TraceRecord& r) {
     counts_.behaviors_halted += e == "halt";
     if (e == "failure") {
       ++counts_.behaviors_failed;
-      if (failures_.size() < 5) failures_.push_back(fmt::format("[{}] {}", sim::format_time(r.time), r.text));
+      if (failures_.size() < 5) failures_.push_back(fmt::format("[{}] {}", format_time(r.time), r.text));
     }
   } else if (r.kind == "call") {
     if (r.flag("ok") == false) {

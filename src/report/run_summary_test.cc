@@ -11,7 +11,7 @@
 namespace icars::report {
 namespace {
 
-behavior::TraceRecord make(sim::SimTime t, std::string kind, std::string text = "") {
+behavior::TraceRecord make(Time t, std::string kind, std::string text = "") {
   behavior::TraceRecord r;
   r.time = t;
   r.kind = std::move(kind);
@@ -24,7 +24,6 @@ TEST(RunSummary, CountsFromTypedFields) {
   RunSummary summary(/*keep_plot=*/false);
   behavior::Trace trace;
   trace.add_sink(summary.sink());
-  using sim::at_time;
   trace.record(make(at_time(0, 18, 0), "state").with("state", "Observation").with("event", "enter"));
   trace.record(make(at_time(0, 19, 0), "state").with("state", "Observation").with("event", "exit"));
   trace.record(make(at_time(0, 19, 0), "transition").with("to", "RestMode"));
@@ -57,7 +56,7 @@ TEST(RunSummary, CountsFromTypedFields) {
   ASSERT_EQ(summary.failures().size(), 1u);
   EXPECT_EQ(summary.failures().front(), "[d0 19:00:00] GoToUser failed");
 
-  const auto states = summary.states(sim::at_time(0, 20, 30));
+  const auto states = summary.states(at_time(0, 20, 30));
   ASSERT_EQ(states.size(), 2u);
   EXPECT_EQ(states[0].state, "Observation");
   EXPECT_EQ(states[0].spent, std::chrono::hours(1));
@@ -67,7 +66,7 @@ TEST(RunSummary, CountsFromTypedFields) {
   char buffer[4096] = {};
   std::FILE* out = fmemopen(buffer, sizeof buffer - 1, "w");
   ASSERT_NE(out, nullptr);
-  summary.print(out, "paper_home", sim::at_time(0, 18, 0), sim::at_time(0, 20, 30), 6.0, 1500);
+  summary.print(out, "paper_home", at_time(0, 18, 0), at_time(0, 20, 30), 6.0, 1500);
   std::fclose(out);
   const std::string printed = buffer;
   EXPECT_NE(printed.find("=== summary: policy paper_home, d0 18:00:00 to d0 20:30:00 (150 min simulated"),
@@ -80,10 +79,10 @@ TEST(RunSummary, PlotKeepsTracksAndMarksTransitionsWhereTheRobotWas) {
   RunSummary summary(/*keep_plot=*/true);
   behavior::Trace trace;
   trace.add_sink(summary.sink());
-  trace.record(make(sim::at_time(0, 18, 0), "robot").with("robot", "r1").with("x", 1.0).with("y", 2.0));
-  trace.record(make(sim::at_time(0, 18, 5), "user").with("user", "u1").with("x", 4.0).with("y", 4.0));
-  trace.record(make(sim::at_time(0, 18, 10), "transition").with("to", "RestMode"));
-  trace.record(make(sim::at_time(0, 18, 11), "user").with("user", "u1"));  // no position: skipped
+  trace.record(make(at_time(0, 18, 0), "robot").with("robot", "r1").with("x", 1.0).with("y", 2.0));
+  trace.record(make(at_time(0, 18, 5), "user").with("user", "u1").with("x", 4.0).with("y", 4.0));
+  trace.record(make(at_time(0, 18, 10), "transition").with("to", "RestMode"));
+  trace.record(make(at_time(0, 18, 11), "user").with("user", "u1"));  // no position: skipped
   sim::House house;
   const auto data = summary.plot("run", house);
   ASSERT_EQ(data.robots.size(), 1u);

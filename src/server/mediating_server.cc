@@ -10,7 +10,7 @@ MediatingServer::MediatingServer(ServerOptions options)
       repository_(options_.policy_dir),
       communicator_(std::make_unique<planet::Communicator>(options_.planet)),
       framework_(std::make_unique<service::ServiceFramework>(*communicator_, options_.adaptors,
-                                                             options_.registry)),
+                                                             options_.registry, options_.composers)),
       access_(options_.planet.access) {}
 
 MediatingServer::~MediatingServer() {
@@ -28,7 +28,7 @@ std::uint16_t MediatingServer::listen() {
 
 planet::Endpoint MediatingServer::endpoint() const { return endpoint_; }
 
-void MediatingServer::use_clock(sim::SimClock& clock) {
+void MediatingServer::use_clock(Clock& clock) {
   if (runtime_ && &runtime_->clock() != &clock) {
     throw std::logic_error("the mediating server's behaviors already run on another clock");
   }

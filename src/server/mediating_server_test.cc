@@ -11,9 +11,11 @@
 #include <mutex>
 
 #include "child_process.h"
-#include "icars/behavior/house_behaviors.h"
+#include "icars/behavior/registry.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
 #include "icars/server/mediating_server.h"
+#include "test_interfaces.h"
 
 namespace icars::server {
 namespace {
@@ -21,18 +23,8 @@ namespace {
 using namespace std::chrono_literals;
 namespace p = icars::planet;
 
-class FakeTV final : public home::TVControlServant {
- public:
-  void set_power(bool on, const p::Current&) override { on_ = on; }
-  void set_channel(std::int32_t, const p::Current&) override {}
-  void set_volume(std::int32_t, const p::Current&) override {}
-  home::TVState state(const p::Current&) override { return home::TVState{on_, 0, 0}; }
-
- private:
-  std::atomic<bool> on_{false};
-};
-
-// A device manager with one TV, as a separate endpoint with its own token.
+// A device manager with one device, as a separate endpoint with its own token. Its capability
+// is the test Echo interface, which the server knows no adaptor for: a GenericAdaptor.
 struct Manager {
   p::Communicator communicator;
   device::DeviceManager manager{communicator};
@@ -40,7 +32,7 @@ struct Manager {
   Manager(std::uint16_t port, const std::string& token, const std::string& id = "tv")
       : communicator(options(token)) {
     auto tv = std::make_shared<device::Device>(id, "TV", "living_room");
-    tv->add("tv_control", std::make_shared<FakeTV>());
+    tv->add("echo", planet_test::make_echo_servant(communicator));
     manager.add(tv);
     manager.connect("127.0.0.1", port);
   }
@@ -82,7 +74,7 @@ constexpr const char* kEvening = R"(<policy name="evening">
 ServerOptions options_with(const PolicyDir& dir) {
   ServerOptions o;
   o.policy_dir = dir.path();
-  o.behaviors = behavior::house::make_house_registry();
+  behavior::register_generic_behaviors(o.behaviors);  // Wait, Emit
   return o;
 }
 
@@ -99,9 +91,9 @@ TEST(MediatingServer, TakesDevicesAndRunsAPolicyOnTheClockItIsGiven) {
   Manager living_room(port, "");
   ASSERT_TRUE(living_room.manager.wait_registered(1, 20s)) << living_room.manager.last_error();
   ASSERT_EQ(server.container().all().size(), 1u);
-  EXPECT_EQ(server.container().all().front()->type(), "TVControl");
+  EXPECT_EQ(server.container().all().front()->type(), "test::Echo");
 
-  sim::SimClock clock(sim::at_time(0, 18, 0));
+  SimClock clock(at_time(0, 18, 0));
   server.use_clock(clock);
   EXPECT_EQ(server.run_policy("evening").policy.name, "evening");
   ASSERT_NE(server.coordinator(), nullptr);
@@ -148,6 +140,7 @@ TEST(MediatingServer, APolicyNeedsAClockAndBrokenPoliciesLeaveTheRunningOneAlone
   PolicyDir dir;
   dir.write("evening.xml", kEvening);
   dir.write("broken.xml", "<policy name=\"broken\"><task name=\"T\">");
+  SimClock clock;  // outlives the server, whose behaviors' timers are on it
   MediatingServer server(options_with(dir));
   try {
     server.run_policy("evening");
@@ -155,14 +148,13 @@ TEST(MediatingServer, APolicyNeedsAClockAndBrokenPoliciesLeaveTheRunningOneAlone
   } catch (const std::logic_error& e) {
     EXPECT_STREQ(e.what(), "the mediating server has no clock: call use_clock() first");
   }
-  sim::SimClock clock;
   server.use_clock(clock);
   server.run_policy("evening");
   EXPECT_THROW(server.run_policy("broken"), control::PolicyError);
   EXPECT_THROW(server.run_policy("missing"), control::PolicyError);
   ASSERT_NE(server.coordinator(), nullptr);
   EXPECT_EQ(server.coordinator()->current(), "Day");
-  sim::SimClock other;
+  SimClock other;
   EXPECT_THROW(server.use_clock(other), std::logic_error);
 }
 

@@ -19,22 +19,6 @@ std::shared_ptr<Adaptor> AdaptorFactory::make(const df::DeviceInfo& device,
   return std::make_shared<GenericAdaptor>(device, capability);
 }
 
-AdaptorFactory AdaptorFactory::house() {
-  AdaptorFactory f;
-  f.add<home::TVControl, TVControlService>();
-  f.add<home::Light, LightService>();
-  f.add<home::Speaker, SpeakerService>();
-  f.add<home::Microphone, SoundSensor>();
-  f.add<home::SpeechRecognizer, SpeechRecognizerService>();
-  f.add<home::Wheels, NavigationService>();
-  f.add<home::MotionSensor, MotionSensorService>();
-  f.add<home::OccupancySensor, OccupancyService>();
-  f.add<home::Camera, CameraService>();
-  f.add<home::FaceRecognizer, FaceRecognizerService>();
-  f.add<home::Clock, ClockService>();
-  f.add<home::Simulation, SimulationService>();
-  return f;
-}
 
 namespace {
 

@@ -5,16 +5,18 @@
 namespace icars::service {
 
 ServiceFramework::ServiceFramework(planet::Communicator& communicator, AdaptorFactory adaptors,
-                                   RegistryOptions options)
+                                   RegistryOptions options, const std::vector<MakeComposer>& composers)
     : communicator_(communicator),
-      registry_(std::make_shared<DeviceRegistry>(communicator, container_, std::move(adaptors), options)),
-      composites_(std::make_unique<CompositeFactory>(container_)) {
+      registry_(std::make_shared<DeviceRegistry>(communicator, container_, std::move(adaptors), options)) {
+  for (const auto& make : composers) {
+    if (auto composer = make(container_)) composers_.push_back(std::move(composer));
+  }
   communicator_.adapter().add(std::string(device::kRegistryPath), registry_);
 }
 
 ServiceFramework::~ServiceFramework() {
   communicator_.adapter().remove(device::kRegistryPath);
-  composites_.reset();
+  composers_.clear();
   registry_.reset();  // the last owner: stops listening to connection events
 }
 

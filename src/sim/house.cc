@@ -264,7 +264,7 @@ class Parser {
                               describe(n)));
   }
 
-  SimTime time_of_day(pugi::xml_node n, const char* key, std::optional<SimTime> fallback) const {
+  Time time_of_day(pugi::xml_node n, const char* key, std::optional<Time> fallback) const {
     const auto a = n.attribute(key);
     if (!a) {
       if (fallback) return *fallback;
@@ -361,7 +361,7 @@ House Parser::parse() {
   House house;
   lines_.house = line(root);
   house.name = name(root, "name");
-  house.start_time = time_of_day(root, "start", SimTime{0});
+  house.start_time = time_of_day(root, "start", Time{0});
   if (auto seed = root.attribute("seed")) {
     const std::string_view text = seed.value();
     const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), house.seed);

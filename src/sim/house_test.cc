@@ -27,7 +27,7 @@ House paper_house() { return load_house(kPaperHouse); }
 TEST(House, PaperHouseHasTheRoomsAndDevicesOfSection5) {
   const auto house = paper_house();
   EXPECT_EQ(house.name, "paper_house");
-  EXPECT_EQ(house.start_time, SimTime(18h));
+  EXPECT_EQ(house.start_time, Time(18h));
   EXPECT_EQ(house.seed, 42u);
   EXPECT_DOUBLE_EQ(house.resolution, 0.05);
   ASSERT_EQ(house.rooms.size(), 2u);
@@ -75,7 +75,7 @@ TEST(House, PaperHouseUserLivesTheRestAndSleepScenario) {
   const auto& u = house.users[0];
   EXPECT_EQ(u.id, "user1");
   EXPECT_TRUE(u.daily);
-  EXPECT_EQ(u.time_jitter, SimTime(20s));
+  EXPECT_EQ(u.time_jitter, Time(20s));
   std::vector<std::string> said;
   bool sits_on_sofa = false;
   bool lies_on_bed = false;
@@ -163,7 +163,7 @@ TEST(House, DefaultsOfAMinimalHouse) {
       <user id="u" x="1" y="1"/>
     </house>)",
                                  "tiny.xml");
-  EXPECT_EQ(house.start_time, SimTime{0});
+  EXPECT_EQ(house.start_time, Time{0});
   EXPECT_EQ(house.seed, 1u);
   EXPECT_DOUBLE_EQ(house.resolution, 0.05);
   EXPECT_EQ(house.walls.size(), 4u);
@@ -174,7 +174,7 @@ TEST(House, DefaultsOfAMinimalHouse) {
   EXPECT_DOUBLE_EQ(u.speed, 1.0);
   EXPECT_DOUBLE_EQ(u.radius, 0.2);
   EXPECT_DOUBLE_EQ(u.loudness_db, 60.0);
-  EXPECT_EQ(u.time_jitter, SimTime{0});
+  EXPECT_EQ(u.time_jitter, Time{0});
   EXPECT_TRUE(u.daily);
   EXPECT_TRUE(u.schedule.empty());
 }

@@ -377,8 +377,8 @@ std::string render_svg(const House& house, const PlotData& data) {
   text(out, kMargin, 28, 18, "#000000", title, " class=\"title\" font-weight=\"bold\"");
 
   // The subtitle: the house and the time the data spans.
-  std::optional<std::pair<SimTime, SimTime>> span;
-  const auto extend = [&](SimTime t) {
+  std::optional<std::pair<Time, Time>> span;
+  const auto extend = [&](Time t) {
     span = span ? std::pair{std::min(span->first, t), std::max(span->second, t)} : std::pair{t, t};
   };
   for (const auto* tracks : {&data.robots, &data.users}) {

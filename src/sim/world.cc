@@ -34,8 +34,8 @@ std::string_view to_string(Posture posture) {
 
 namespace {
 
-SimTime travel_time(double metres, double speed) {
-  return SimTime(std::llround(metres / speed * 1000.0));
+Time travel_time(double metres, double speed) {
+  return Time(std::llround(metres / speed * 1000.0));
 }
 
 // A body moving along a path at constant speed from `start`.
@@ -43,11 +43,11 @@ struct Motion {
   std::vector<Point> path;
   double length = 0;
   double speed = 1;
-  SimTime start{0};
+  Time start{0};
 
-  SimTime end() const { return start + travel_time(length, speed); }
+  Time end() const { return start + travel_time(length, speed); }
   Pose last() const { return point_along(path, length); }  // exactly the end of the path
-  Pose at(SimTime now) const {
+  Pose at(Time now) const {
     const double elapsed = static_cast<double>((now - start).count()) / 1000.0;
     return point_along(path, std::clamp(elapsed * speed, 0.0, length));
   }
@@ -101,7 +101,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     std::uint64_t report_timer = 0;
     std::uint64_t arrival_timer = 0;
 
-    Pose pose_at(SimTime now) const { return motion ? motion->at(now) : pose; }
+    Pose pose_at(Time now) const { return motion ? motion->at(now) : pose; }
   };
 
   struct Pending {
@@ -161,7 +161,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
 
   // Schedules `fn` on the clock; it runs under the World lock, and the notes it leaves are
   // delivered after the lock is released. Call with the lock held.
-  std::uint64_t schedule(SimTime t, std::function<void(Notes&)> fn) {
+  std::uint64_t schedule(Time t, std::function<void(Notes&)> fn) {
     auto id = std::make_shared<std::uint64_t>(0);
     *id = clock.schedule_at(t, [weak = weak_from_this(), fn = std::move(fn), id] {
       const auto self = weak.lock();
@@ -220,7 +220,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   // --- robots --------------------------------------------------------------------------------
 
   // Ends the current motion where the robot is now; its `done` hears false.
-  void halt(Robot& r, SimTime now, Notes& notes) {
+  void halt(Robot& r, Time now, Notes& notes) {
     if (!r.motion) return;
     r.pose = r.motion->at(now);
     r.motion.reset();
@@ -231,7 +231,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
 
   // Sets the robot driving along `m` (started at or before `now`): a pose report now, then
   // every report_every, and the arrival at m.end(). Call with the lock held and no motion.
-  void drive(Robot& r, Motion m, std::function<void(bool)> done, SimTime now) {
+  void drive(Robot& r, Motion m, std::function<void(bool)> done, Time now) {
     r.motion = std::move(m);
     r.done = std::move(done);
     r.pose.theta = r.motion->at(now).theta;
@@ -277,7 +277,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     }
   }
 
-  void schedule_report(Robot& r, SimTime t) {
+  void schedule_report(Robot& r, Time t) {
     r.report_timer = schedule(t, [this, &r](Notes& notes) {
       r.report_timer = 0;
       const auto now = clock.now();
@@ -290,26 +290,26 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
 
   // --- users ---------------------------------------------------------------------------------
 
-  void notify(User& u, Notes& notes, SimTime now) {
+  void notify(User& u, Notes& notes, Time now) {
     auto state = u.state;
     if (u.walk) state.at = u.walk->at(now).position();
     notes.push_back(std::move(state));
   }
 
   // Queues the user's activities of `day` from `not_before` on, then the next day's.
-  void schedule_day(User& u, std::int64_t day, SimTime not_before) {
-    const SimTime day_start = kDay * day;
+  void schedule_day(User& u, std::int64_t day, Time not_before) {
+    const Time day_start = kDay * day;
     const auto jitter_ms = u.spec->time_jitter.count();
-    SimTime previous = std::max(day_start, not_before);
+    Time previous = std::max(day_start, not_before);
     for (const auto& entry : u.spec->schedule) {
       // Draw for every entry, scheduled or not: the draws do not depend on the start time.
-      const auto jitter = SimTime(
+      const auto jitter = Time(
           static_cast<std::int64_t>(u.rng() % static_cast<std::uint64_t>(2 * jitter_ms + 1)) -
           jitter_ms);
       const double unit = static_cast<double>(u.rng() >> 11) * 0x1.0p-53;  // [0, 1)
       const double loudness = u.spec->loudness_db + (2 * unit - 1) * u.spec->loudness_jitter_db;
       if (day_start + entry.at < not_before) continue;
-      const SimTime t = std::max(day_start + entry.at + jitter, previous);
+      const Time t = std::max(day_start + entry.at + jitter, previous);
       previous = t;
       schedule(t, [this, &u, p = Pending{entry, loudness}](Notes& notes) {
         u.queue.push_back(p);
@@ -323,7 +323,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   }
 
   // Starts queued activities until one takes time (a walk) or the queue is empty.
-  void run_next(User& u, Notes& notes, SimTime now) {
+  void run_next(User& u, Notes& notes, Time now) {
     while (!u.walk && !u.queue.empty()) {
       const auto p = std::move(u.queue.front());
       u.queue.pop_front();
@@ -358,7 +358,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     }
   }
 
-  void get_up(User& u, Notes& notes, SimTime now) {
+  void get_up(User& u, Notes& notes, Time now) {
     if (u.state.furniture.empty()) return;
     occupancy.erase(u.state.furniture);
     if (const auto spot = house.locate(u.state.furniture)) u.state.at = *spot;
@@ -370,7 +370,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
 
   // Walks to `target` (a waypoint, room, or furniture's approach spot), then takes `posture`
   // (sitting or lying: on the furniture `target`).
-  void walk(User& u, const std::string& target, Posture posture, Notes& notes, SimTime now) {
+  void walk(User& u, const std::string& target, Posture posture, Notes& notes, Time now) {
     const auto spot = house.locate(target);
     // A parsed house guarantees every target has a reachable spot; a hand-built one might
     // not, and then the activity is skipped with the user where they are.
@@ -405,7 +405,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
     });
   }
 
-  void arrive(User& u, const std::string& target, Posture posture, Notes& notes, SimTime now) {
+  void arrive(User& u, const std::string& target, Posture posture, Notes& notes, Time now) {
     if (u.walk) u.state.at = u.walk->path.back();
     u.walk.reset();
     u.state.posture = posture;
@@ -431,7 +431,7 @@ World::World(House house, SimClock& clock, WorldOptions options)
     r.pose = spec.start;
   }
   const auto now = clock.now();
-  const SimTime not_before = std::max(now, s.house.start_time);
+  const Time not_before = std::max(now, s.house.start_time);
   for (std::size_t i = 0; i < s.house.users.size(); ++i) {
     const auto& spec = s.house.users[i];
     auto& u = s.users[spec.id];
@@ -539,7 +539,7 @@ std::vector<RobotState> World::robot_states() const {
   std::vector<RobotState> out;
   out.reserve(impl_->robots.size());
   for (const auto& [id, r] : impl_->robots) {
-    RobotState state{id, now, r.pose_at(now), {}, SimTime{0}};
+    RobotState state{id, now, r.pose_at(now), {}, Time{0}};
     if (r.motion) {
       state.path = r.motion->path;
       state.start = r.motion->start;

@@ -25,7 +25,7 @@ const std::filesystem::path kPaperHouse =
 House paper_house() { return load_house(kPaperHouse); }
 
 struct PoseEvent {
-  SimTime time;
+  Time time;
   Pose pose;
   bool moving;
 };
@@ -42,7 +42,7 @@ TEST(World, RobotReachesAWaypointInTheOtherRoomInPathTime) {
   });
   EXPECT_EQ(world.robot_room("robot1"), "living_room");
   const auto target = *house.locate("bedroom_window");
-  std::optional<SimTime> arrived_at;
+  std::optional<Time> arrived_at;
   std::optional<bool> result;
   const auto start = clock.now();
   const auto path = world.move_robot("robot1", target, [&](bool arrived) {
@@ -71,7 +71,7 @@ TEST(World, RobotReachesAWaypointInTheOtherRoomInPathTime) {
   EXPECT_EQ(poses.front().time, start);
   for (std::size_t i = 0; i + 1 < poses.size(); ++i) {
     EXPECT_TRUE(poses[i].moving);
-    EXPECT_EQ(poses[i].time, start + SimTime(500) * static_cast<int>(i));
+    EXPECT_EQ(poses[i].time, start + Time(500) * static_cast<int>(i));
   }
   EXPECT_FALSE(poses.back().moving);
   EXPECT_EQ(poses.back().time, *arrived_at);
@@ -219,12 +219,12 @@ TEST(World, UnreachableOrBlockedTargets) {
 
 // What the paper house's user does in a day, as a listener sees it.
 struct Trace {
-  std::vector<std::pair<SimTime, UserState>> states;
+  std::vector<std::pair<Time, UserState>> states;
   std::vector<Utterance> utterances;
   std::vector<std::string> lines;  // everything, formatted, for comparing runs
 };
 
-Trace run_day(House house, SimTime until,
+Trace run_day(House house, Time until,
               std::function<void(World&, const Utterance&)> check = {}) {
   SimClock clock(house.start_time);
   World world(std::move(house), clock);
@@ -261,7 +261,7 @@ TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
   });
 
   // The five voice commands, in order, each at its time (± jitter), from the sofa.
-  const std::vector<std::pair<std::string, SimTime>> said = {{"turn on the TV", at_time(0, 18, 12)},
+  const std::vector<std::pair<std::string, Time>> said = {{"turn on the TV", at_time(0, 18, 12)},
                                                              {"channel 5", at_time(0, 18, 15)},
                                                              {"volume up", at_time(0, 18, 20)},
                                                              {"play music", at_time(0, 19, 0)},
@@ -281,7 +281,7 @@ TEST(World, PaperHouseUserLivesTheScheduleAtTheScheduledTimes) {
   }
 
   // Room changes and postures, each in its window.
-  const auto first = [&](SimTime from, auto pred) -> std::optional<std::pair<SimTime, UserState>> {
+  const auto first = [&](Time from, auto pred) -> std::optional<std::pair<Time, UserState>> {
     for (const auto& e : trace.states) {
       if (e.first >= from && pred(e.second)) return e;
     }
@@ -415,13 +415,13 @@ TEST(World, SoundFadesWithDistanceAndWalls) {
   const auto house = paper_house();
   SimClock clock(house.start_time);
   World world(house, clock);
-  Utterance u{"user1", "hi", "living_room", {3, 1}, SimTime{0}, 60};
+  Utterance u{"user1", "hi", "living_room", {3, 1}, Time{0}, 60};
   EXPECT_DOUBLE_EQ(world.sound_level(u, {3, 1.5}), 60.0);  // within a metre
   EXPECT_NEAR(world.sound_level(u, {5, 1}), 60.0 - 20 * std::log10(2.0), 1e-9);
   // Through the wall between the rooms: 10 dB less than the same distance in the open...
   EXPECT_NEAR(world.sound_level(u, {7, 1}), 60.0 - 20 * std::log10(4.0) - 10, 1e-9);
   // ...but not through the open door.
-  Utterance near_door{"user1", "hi", "living_room", {5, 2.5}, SimTime{0}, 60};
+  Utterance near_door{"user1", "hi", "living_room", {5, 2.5}, Time{0}, 60};
   EXPECT_NEAR(world.sound_level(near_door, {7, 2.5}), 60.0 - 20 * std::log10(2.0), 1e-9);
 }
 

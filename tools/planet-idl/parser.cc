@@ -178,7 +178,9 @@ class FileParser {
   std::string qualify(std::string_view name) const {
     return join_scope(scope_, scope_.size(), name);
   }
-  static void check_name(const Token& t, std::string_view role) {
+  // `icars` may name an outermost module (ICARS's own IDL nests its modules in it, so that the
+  // generated code is in namespace icars) and so begin a scoped name; nowhere else.
+  static void check_name(const Token& t, std::string_view role, bool may_be_icars = false) {
     if (t.is(TokenKind::keyword)) {
       throw CompileError(t.location, quote(t.text) + " is a keyword of the IDL", std::string(role));
     }
@@ -187,7 +189,7 @@ class FileParser {
       throw CompileError(t.location, quote(t.text) + " is a C++ keyword",
                          std::string(role) + " that is not a C++ keyword");
     }
-    if (contains(kReservedNames, t.text)) {
+    if (contains(kReservedNames, t.text) && !(may_be_icars && t.text == "icars")) {
       throw CompileError(t.location, quote(t.text) + " is reserved for the C++ mapping",
                          std::string(role) + " other than std, icars and asio");
     }
@@ -196,15 +198,15 @@ class FileParser {
                          std::string(role) + " without them (C++ and the generated code use them)");
     }
   }
-  std::string take_name(std::string_view role) {
-    check_name(peek(), role);
+  std::string take_name(std::string_view role, bool may_be_icars = false) {
+    check_name(peek(), role, may_be_icars);
     return std::string(advance().text);
   }
   ScopedName parse_scoped_name(std::string_view role) {
     ScopedName name;
     name.location = peek().location;
     name.absolute = accept(TokenKind::scope);
-    name.text = take_name(role);
+    name.text = take_name(role, /*may_be_icars=*/true);  // the outermost module, if any
     while (accept(TokenKind::scope)) {
       name.text += "::";
       name.text += take_name(role);
@@ -426,7 +428,7 @@ void FileParser::parse_module(Module& parent) {
                        "at most 32 nested modules");
   }
   const Token& name_token = peek();
-  const std::string name = take_name("a module name");
+  const std::string name = take_name("a module name", /*may_be_icars=*/scope_.empty());
   check_new_definition(name_token, DefinitionKind::module);
   auto module = std::make_unique<Module>(name, qualify(name), name_token.location);
   Module& m = *module;

@@ -140,6 +140,22 @@ TEST(Parser, LooksNamesUpThroughEnclosingModulesInnermostFirst) {
   EXPECT_EQ(q.fields[2].type.to_idl(), "a::P");
 }
 
+// ICARS's own IDL nests its modules in `icars`, so the generated code is in namespace icars;
+// anywhere else the name stays reserved.
+TEST(Parser, IcarsNamesOnlyAnOutermostModule) {
+  const Program program = parse(
+      "module icars { module home { valued P { int x; }; }; }\n"
+      "module app { valued Q { icars::home::P p; }; }");
+  const Module& app = definition<Module>(program.main->root, 1);
+  EXPECT_EQ(definition<Struct>(app, 0).fields[0].type.to_idl(), "icars::home::P");
+  EXPECT_EQ(error_of("module a { module icars { } }"),
+            "main.idl:1:19: error: 'icars' is reserved for the C++ mapping, expected a module "
+            "name other than std, icars and asio");
+  EXPECT_EQ(error_of("valued icars { int x; };"),
+            "main.idl:1:8: error: 'icars' is reserved for the C++ mapping, expected a name for "
+            "the valued other than std, icars and asio");
+}
+
 TEST(Parser, ReopenedModulesShareTheirNames) {
   const Program program =
       parse("module a { valued P { int x; }; }\nmodule a { valued Q { P p; }; }");

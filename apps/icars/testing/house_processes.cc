@@ -146,11 +146,11 @@ std::int64_t SharedClock::wall_ms() {
       .count();
 }
 
-SimTime SharedClock::now() const {
-  return start + SimTime(static_cast<std::int64_t>(static_cast<double>(wall_ms() - epoch_ms) * speed));
+icars::Time SharedClock::now() const {
+  return start + icars::Time(static_cast<std::int64_t>(static_cast<double>(wall_ms() - epoch_ms) * speed));
 }
 
-std::chrono::milliseconds SharedClock::wall(SimTime simulated) const {
+std::chrono::milliseconds SharedClock::wall(icars::Time simulated) const {
   return std::chrono::milliseconds(static_cast<std::int64_t>(static_cast<double>(simulated.count()) / speed));
 }
 
@@ -171,7 +171,7 @@ void Manager::launch(const fs::path& dir, const std::vector<std::string>& env, c
   started_wall = std::chrono::steady_clock::now();
 }
 
-void Manager::read_output(SimTime now, std::vector<std::string>& failures) {
+void Manager::read_output(icars::Time now, std::vector<std::string>& failures) {
   if (!process) return;
   for (const auto& line : process->lines()) {
     if (line.starts_with("STATE ")) state_lines.push_back(line);
@@ -192,8 +192,8 @@ void Manager::read_output(SimTime now, std::vector<std::string>& failures) {
   }
 }
 
-void wait_for_end(Program& mediator, const SharedClock& clock, SimTime end, const std::function<void()>& pump) {
-  const auto bound = std::chrono::steady_clock::now() + 120s + clock.wall(std::max(end - clock.now(), SimTime(0)));
+void wait_for_end(Program& mediator, const SharedClock& clock, icars::Time end, const std::function<void()>& pump) {
+  const auto bound = std::chrono::steady_clock::now() + 120s + clock.wall(std::max(end - clock.now(), icars::Time(0)));
   while (!mediator.exited() && std::chrono::steady_clock::now() < bound) {
     pump();
     std::this_thread::sleep_for(5ms);
@@ -252,19 +252,19 @@ std::vector<Moment> occupancy_moments(const sim::House& house, const std::set<st
   return out;
 }
 
-SimTime next_moment(const std::vector<Moment>& moments, SimTime t, const std::string& furniture) {
-  SimTime best = SimTime::max();
+icars::Time next_moment(const std::vector<Moment>& moments, icars::Time t, const std::string& furniture) {
+  icars::Time best = icars::Time::max();
   for (const auto& m : moments) {
     if (!furniture.empty() && m.furniture != furniture) continue;
-    auto at = sim::kDay * (t / sim::kDay) + m.time_of_day;
-    if (at <= t) at += sim::kDay;
+    auto at = icars::kDay * (t / icars::kDay) + m.time_of_day;
+    if (at <= t) at += icars::kDay;
     best = std::min(best, at);
   }
   return best;
 }
 
-SimTime schedule_jitter(const sim::House& house) {
-  SimTime jitter{0};
+icars::Time schedule_jitter(const sim::House& house) {
+  icars::Time jitter{0};
   for (const auto& u : house.users) jitter = std::max(jitter, u.time_jitter);
   return jitter;
 }
@@ -296,9 +296,9 @@ std::string str(const json& j, const char* key) {
 TaskTimeline follow_tasks(const std::vector<json>& trace) {
   TaskTimeline out;
   std::map<std::string, std::size_t> open_run;          // task -> index in runs
-  std::map<std::string, std::vector<SimTime>> running;  // behavior path -> start times not yet ended
+  std::map<std::string, std::vector<icars::Time>> running;  // behavior path -> start times not yet ended
   for (const auto& r : trace) {
-    const SimTime t(r.value("t", std::int64_t{0}));
+    const icars::Time t(r.value("t", std::int64_t{0}));
     const auto kind = str(r, "kind");
     const auto event = str(r, "event");
     if (kind == "task" && event == "start") {
@@ -312,7 +312,7 @@ TaskTimeline follow_tasks(const std::vector<json>& trace) {
       for (const auto& [path, starts] : running) {
         if (!starts.empty() && path.starts_with(task + "/")) {
           out.stuck.push_back(fmt::format("behavior {} (started {}) still running when task {} stopped at {}", path,
-                                          sim::format_time(starts.front()), task, sim::format_time(t)));
+                                          icars::format_time(starts.front()), task, icars::format_time(t)));
         }
       }
     } else if (kind == "behavior") {
@@ -326,22 +326,22 @@ TaskTimeline follow_tasks(const std::vector<json>& trace) {
   }
   for (const auto& [path, starts] : running) {
     for (const auto& at : starts) {
-      out.stuck.push_back(fmt::format("behavior {} started {} never ended", path, sim::format_time(at)));
+      out.stuck.push_back(fmt::format("behavior {} started {} never ended", path, icars::format_time(at)));
     }
   }
   return out;
 }
 
-void find_overdue_tasks(TaskTimeline& timeline, const std::function<SimTime(SimTime)>& next_change, SimTime slack,
-                        SimTime end) {
+void find_overdue_tasks(TaskTimeline& timeline, const std::function<icars::Time(icars::Time)>& next_change, icars::Time slack,
+                        icars::Time end) {
   for (const auto& run : timeline.runs) {
     const auto limit = next_change(run.started + 15min) + slack;
     if (run.stopped > limit && limit < end) {
       timeline.stuck.push_back(fmt::format(
           "task {} started {} still running at {} (the user's situation changed at {})", run.task,
-          sim::format_time(run.started),
-          run.stopped == SimTime::max() ? std::string("the end") : sim::format_time(run.stopped),
-          sim::format_time(limit - slack)));
+          icars::format_time(run.started),
+          run.stopped == icars::Time::max() ? std::string("the end") : icars::format_time(run.stopped),
+          icars::format_time(limit - slack)));
     }
   }
 }

@@ -21,13 +21,13 @@
 #include <vector>
 
 #include "child_process.h"
+#include "icars/clock/time.h"
 #include "icars/sim/house.h"
-#include "icars/sim/time.h"
 
 namespace icars_test {
 
 namespace fs = std::filesystem;
-using icars::sim::SimTime;
+using icars::Time;
 
 // --- Logs and exit statuses ---------------------------------------------------------------
 
@@ -108,13 +108,13 @@ std::string start_mediator(Program& server, std::vector<std::string>& output);
 // time, in ms since 1970, at which the house is at its start time), so a manager restarted at
 // any time resumes where the others are.
 struct SharedClock {
-  SimTime start{0};
+  Time start{0};
   std::int64_t epoch_ms = 0;
   double speed = 1;
   static std::int64_t wall_ms();
-  SimTime now() const;
+  Time now() const;
   // Wall time for `simulated` of simulated time.
-  std::chrono::milliseconds wall(SimTime simulated) const;
+  std::chrono::milliseconds wall(Time simulated) const;
 };
 
 // One icars-device-manager: which of the house's devices it hosts, its current process
@@ -130,12 +130,12 @@ struct Manager {
   int incarnation = 0;
   bool registered = false;  // the current incarnation registered at least once
   std::chrono::steady_clock::time_point started_wall;
-  SimTime down_since{0};
+  Time down_since{0};
   int kills = 0, registrations = 0;                  // first registrations of incarnations
   std::uint64_t rounds = 0;                          // every REGISTERED line, reconnections too
   std::vector<std::string> state_lines;              // "STATE restored FILE", one per incarnation
   std::vector<double> reregistration_ms;             // wall time from restart to registration
-  std::vector<std::pair<SimTime, SimTime>> outages;  // killed .. registered again
+  std::vector<std::pair<Time, Time>> outages;  // killed .. registered again
 
   // The command line of a new incarnation: the house, the devices, the clock (--speedup,
   // --epoch), the engines and Simulation only on the simulation manager. Add more options after.
@@ -145,11 +145,11 @@ struct Manager {
   void launch(const fs::path& dir, const std::vector<std::string>& env, const std::vector<std::string>& argv);
   // Reads its output: registrations (a device count other than expected_devices is added to
   // `failures`), state lines. `now` stamps the end of an outage.
-  void read_output(SimTime now, std::vector<std::string>& failures);
+  void read_output(Time now, std::vector<std::string>& failures);
 };
 
 // Pumps (`pump`) until the mediator has exited, at most 120 s of wall time past `end`.
-void wait_for_end(Program& mediator, const SharedClock& clock, SimTime end, const std::function<void()>& pump);
+void wait_for_end(Program& mediator, const SharedClock& clock, Time end, const std::function<void()>& pump);
 
 // SIGTERM to every manager's current incarnation; waits up to 60 s for each and returns their
 // wait statuses by name. One that ignores SIGTERM is added to `failures`.
@@ -166,14 +166,14 @@ std::set<std::string> sensed_furniture(const std::vector<Manager>& managers);
 // sensor watches: the only inputs that move the paper policy's statechart.
 struct Moment {
   std::string furniture;
-  SimTime time_of_day;
+  Time time_of_day;
   bool occupied = false;  // sits or lies down (true), or gets up
 };
 std::vector<Moment> occupancy_moments(const icars::sim::House& house, const std::set<std::string>& sensed);
 // The first moment strictly after `t` (in any day), of the given furniture or of any.
-SimTime next_moment(const std::vector<Moment>& moments, SimTime t, const std::string& furniture = "");
+Time next_moment(const std::vector<Moment>& moments, Time t, const std::string& furniture = "");
 // The users' largest schedule jitter.
-SimTime schedule_jitter(const icars::sim::House& house);
+Time schedule_jitter(const icars::sim::House& house);
 
 // A house file split over three managers (split_paper_house), with its occupancy moments and
 // the schedule's jitter.
@@ -181,7 +181,7 @@ struct PaperHouse {
   icars::sim::House house;
   std::vector<Manager> managers;
   std::vector<Moment> moments;
-  SimTime jitter{0};
+  Time jitter{0};
 };
 PaperHouse load_paper_house(const std::string& house_file);
 
@@ -193,7 +193,7 @@ std::string str(const json& j, const char* key);  // "" when absent or not a str
 
 struct TaskRun {
   std::string task;
-  SimTime started{0}, stopped = SimTime::max();  // max: still running at the end
+  Time started{0}, stopped = Time::max();  // max: still running at the end
 };
 
 // The task runs of a trace and the behaviors that got stuck: still running when their task
@@ -211,7 +211,7 @@ TaskTimeline follow_tasks(const std::vector<json>& trace);
 // its start (jitter, the walk, the mediator's clock following the house's by a poll), and the
 // moments are at least 30 minutes apart. `next_change(t)` is the first moment the mediator can
 // see after `t`; runs whose limit is at or after `end` are not judged.
-void find_overdue_tasks(TaskTimeline& timeline, const std::function<SimTime(SimTime)>& next_change, SimTime slack,
-                        SimTime end);
+void find_overdue_tasks(TaskTimeline& timeline, const std::function<Time(Time)>& next_change, Time slack,
+                        Time end);
 
 }  // namespace icars_test

@@ -15,15 +15,15 @@
 //
 //   class LookAtSound : public Behavior {            // Fig. 11b
 //     void entry() override {
-//       wheels_ = require<service::NavigationService>(of_type("Navigation"));
-//       listen(require<service::SoundSensor>(of_type("SoundSensor")));
+//       wheels_ = require<home::NavigationService>(of_type("Navigation"));
+//       listen(require<home::SoundSensor>(of_type("SoundSensor")));
 //     }
 //     void handle_event(const Event& e) override {
 //       if (e.type() == "SoundEvent")
 //         invoke(*wheels_, "turn_to", [&](auto done) {
 //           wheels_->proxy().turn_to_async(e.get<double>("direction"), done); });
 //     }
-//     std::shared_ptr<service::NavigationService> wheels_;
+//     std::shared_ptr<home::NavigationService> wheels_;
 //   };
 #pragma once
 
@@ -130,7 +130,7 @@ class Behavior : public Owner {
   Environment& env() { return *env_; }
   Runtime& runtime() { return env_->runtime; }
   service::ServiceContainer& services() { return env_->services; }
-  sim::SimTime now() const { return env_->runtime.now(); }
+  Time now() const { return env_->runtime.now(); }
   void note(std::string text);  // a line in the trace, from this behavior
 
   static service::ServiceQuery of_type(std::string type) { return service::ServiceQuery::of_type(std::move(type)); }
@@ -162,7 +162,7 @@ class Behavior : public Owner {
   void listen_devices();
 
   // Runs `fn` on the runtime after `delay` of (simulated) time, unless this activation ended.
-  std::uint64_t after(sim::SimTime delay, std::function<void()> fn);
+  std::uint64_t after(Time delay, std::function<void()> fn);
   void cancel(std::uint64_t timer);
   // Runs at exit (after exit()), in reverse order of registration.
   void on_release(std::function<void()> fn) { releases_.push_back(std::move(fn)); }
@@ -217,7 +217,7 @@ class Behavior : public Owner {
     });
   }
 
-  // `e` renamed to its type without namespace ("home::OccupancyEvent" → "OccupancyEvent").
+  // `e` renamed to its type without namespace ("icars::home::OccupancyEvent" → "OccupancyEvent").
   static Event rename(Event e);
 
   // "a call failed: <what the exception says>"

@@ -117,7 +117,7 @@ struct AggregateSpec {
   std::string emit;
   int count = 2;
   std::vector<std::string> all_of;
-  sim::SimTime window{0};
+  Time window{0};
   bool pass_unmatched = false;
 };
 
@@ -132,26 +132,26 @@ class AggregateBehavior : public ConcurrentBehavior {
 
  private:
   AggregateSpec spec_;
-  std::deque<std::pair<sim::SimTime, Event>> collected_;
+  std::deque<std::pair<Time, Event>> collected_;
 };
 
 // Leaves every application needs.
 // Waits for a duration of (simulated) time, then succeeds.
 class WaitBehavior : public Behavior {
  public:
-  explicit WaitBehavior(sim::SimTime duration) : duration_(duration) {}
+  explicit WaitBehavior(Time duration) : duration_(duration) {}
 
  protected:
   void entry() override;
 
  private:
-  sim::SimTime duration_;
+  Time duration_;
 };
 
 // Propagates one event, then succeeds (after `delay`, if given).
 class EmitBehavior : public Behavior {
  public:
-  explicit EmitBehavior(Event event, sim::SimTime delay = sim::SimTime{0})
+  explicit EmitBehavior(Event event, Time delay = Time{0})
       : event_(std::move(event)), delay_(delay) {}
 
  protected:
@@ -159,7 +159,7 @@ class EmitBehavior : public Behavior {
 
  private:
   Event event_;
-  sim::SimTime delay_;
+  Time delay_;
 };
 
 }  // namespace icars::behavior

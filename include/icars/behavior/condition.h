@@ -45,8 +45,8 @@
 #include <variant>
 #include <vector>
 
+#include "icars/clock/time.h"
 #include "icars/planet/event.h"
-#include "icars/sim/time.h"
 
 namespace icars::behavior {
 
@@ -70,7 +70,7 @@ class ConditionError : public std::runtime_error {
 
 // What a condition sees besides the event's properties.
 struct ConditionScope {
-  sim::SimTime now{0};  // `time` = time of day of now, `day` = now / 24h
+  Time now{0};  // `time` = time of day of now, `day` = now / 24h
   std::map<std::string, ConditionValue, std::less<>> variables;  // checked before properties
 };
 

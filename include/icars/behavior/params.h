@@ -10,7 +10,7 @@
 #include <string_view>
 #include <vector>
 
-#include "icars/sim/time.h"
+#include "icars/clock/time.h"
 
 namespace icars::behavior {
 
@@ -39,8 +39,8 @@ class ParamError : public std::runtime_error {
 double parse_number(std::string_view name, std::string_view text);
 long long parse_integer(std::string_view name, std::string_view text);
 bool parse_boolean(std::string_view name, std::string_view text);
-sim::SimTime parse_duration(std::string_view name, std::string_view text);
-sim::SimTime parse_time_param(std::string_view name, std::string_view text);
+Time parse_duration(std::string_view name, std::string_view text);
+Time parse_time_param(std::string_view name, std::string_view text);
 std::vector<std::string> parse_list(std::string_view text);
 // Checks `text` against `type`; throws ParamError.
 void check_param(std::string_view name, ParamType type, std::string_view text);
@@ -57,8 +57,8 @@ class Params {
   double number(std::string_view name) const;
   long long integer(std::string_view name) const;
   bool boolean(std::string_view name) const;
-  sim::SimTime duration(std::string_view name) const;
-  sim::SimTime time_of_day(std::string_view name) const;
+  Time duration(std::string_view name) const;
+  Time time_of_day(std::string_view name) const;
   std::vector<std::string> list(std::string_view name) const;
 
   const std::map<std::string, std::string, std::less<>>& values() const { return values_; }

@@ -18,7 +18,7 @@
 #include <future>
 #include <thread>
 
-#include "icars/sim/clock.h"
+#include "icars/clock/clock.h"
 
 namespace icars::behavior {
 
@@ -26,13 +26,13 @@ class Runtime {
  public:
   // Starts the runtime thread. Timers follow `clock` (a simulated clock driven by hand in
   // tests, by a RealTimeDriver in a house, at 1x against the wall clock in production).
-  explicit Runtime(sim::SimClock& clock);
+  explicit Runtime(Clock& clock);
   ~Runtime();  // stops the thread; handlers still queued are dropped
   Runtime(const Runtime&) = delete;
   Runtime& operator=(const Runtime&) = delete;
 
-  sim::SimClock& clock() { return clock_; }
-  sim::SimTime now() const { return clock_.now(); }
+  Clock& clock() { return clock_; }
+  Time now() const { return clock_.now(); }
 
   // Runs `fn` on the runtime thread after everything posted before it. Thread-safe. An
   // exception escaping `fn` is a bug in the handler: it is logged to stderr and dropped.
@@ -57,7 +57,7 @@ class Runtime {
 
   // Posts `fn` when the clock reaches now + delay. Returns an id for cancel_timer. Cancelling
   // from the runtime thread guarantees `fn` does not run, even if the clock already fired it.
-  std::uint64_t start_timer(sim::SimTime delay, std::function<void()> fn);
+  std::uint64_t start_timer(Time delay, std::function<void()> fn);
   void cancel_timer(std::uint64_t id);
 
   std::uint64_t handlers_run() const { return handlers_run_.load(); }
@@ -65,7 +65,7 @@ class Runtime {
  private:
   struct TimerTable;
 
-  sim::SimClock& clock_;
+  Clock& clock_;
   asio::io_context io_;
   asio::executor_work_guard<asio::io_context::executor_type> work_;
   std::atomic<std::int64_t> outstanding_{0};

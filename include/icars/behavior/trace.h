@@ -17,14 +17,14 @@
 #include <variant>
 #include <vector>
 
-#include "icars/sim/time.h"
+#include "icars/clock/time.h"
 
 namespace icars::behavior {
 
 using TraceValue = std::variant<std::string, double, bool>;
 
 struct TraceRecord {
-  sim::SimTime time{0};
+  Time time{0};
   std::string kind;    // "transition", "task", "behavior", "call", "event", "effect", "robot", ...
   std::string source;  // who: a state, a behavior's path ("RestMode/VoiceControl/GoToUser"), a device
   std::string text;    // one readable line

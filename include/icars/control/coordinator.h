@@ -84,7 +84,7 @@ class Coordinator {
   std::vector<Node*> active_;  // outermost first
   std::uint64_t transitions_ = 0;
   static constexpr int kMaxTransitionsPerInstant = 100;
-  sim::SimTime last_transition_at_{-1};
+  Time last_transition_at_{-1};
   int transitions_this_instant_ = 0;
   std::uint64_t device_watch_ = 0;
   std::shared_ptr<const char> life_ = std::make_shared<const char>('\0');

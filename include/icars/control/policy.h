@@ -41,7 +41,7 @@ struct NodeSpec {
 struct TaskSpec {
   std::string name;
   std::vector<std::string> events;  // the task events it raises besides done and failed
-  std::optional<sim::SimTime> timeout;  // a task still running after this fails
+  std::optional<Time> timeout;  // a task still running after this fails
   NodeSpec root;
   int line = 0;
 };

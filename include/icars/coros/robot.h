@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "icars/sim/clock.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/sim/house.h"
 #include "icars/sim/planner.h"
 #include "icars/sim/world.h"
@@ -93,17 +93,17 @@ class SimRobot : public Robot {
   double clock_seconds() const override;
 
   // Every pose reported while driving, with simulated time: the robot's track for plots.
-  std::vector<std::pair<sim::SimTime, sim::Point>> track() const;
+  std::vector<std::pair<Time, sim::Point>> track() const;
 
  private:
   SimRobotOptions options_;
-  sim::SimClock clock_;
+  SimClock clock_;
   std::unique_ptr<sim::World> world_;
-  std::unique_ptr<sim::RealTimeDriver> driver_;
+  std::unique_ptr<RealTimeDriver> driver_;
   mutable std::mutex mutex_;
   double odometer_ = 0;
   sim::Point last_{};
-  std::vector<std::pair<sim::SimTime, sim::Point>> track_;
+  std::vector<std::pair<Time, sim::Point>> track_;
   std::uint64_t listener_ = 0;
 };
 

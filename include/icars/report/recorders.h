@@ -15,9 +15,9 @@
 #include <vector>
 
 #include "icars/behavior/trace.h"
+#include "icars/clock/clock.h"
 #include "icars/planet/proxy.h"
 #include "icars/service/service_container.h"
-#include "icars/sim/clock.h"
 
 namespace icars::report {
 
@@ -25,12 +25,12 @@ namespace icars::report {
 // returns, the previous clock is no longer read.
 class TraceClock {
  public:
-  void set(const sim::SimClock* clock);
-  sim::SimTime now() const;
+  void set(const Clock* clock);
+  Time now() const;
 
  private:
   mutable std::mutex mutex_;
-  const sim::SimClock* clock_ = nullptr;
+  const Clock* clock_ = nullptr;
 };
 
 // The commands a server sends to devices: every call of an operation that changes a device,

@@ -40,16 +40,16 @@ class RunSummary {
   struct StateTime {
     std::string state;
     int entered = 0;
-    sim::SimTime spent{0};
+    Time spent{0};
   };
-  std::vector<StateTime> states(sim::SimTime to) const;
+  std::vector<StateTime> states(Time to) const;
   // The first five behavior failures, "[d0 18:10:00] <text>".
   std::vector<std::string> failures() const;
   // The last effect per device ("power on", "channel 5").
   std::map<std::string, std::string> device_states() const;
 
   // "=== summary: ..." and what follows, as `icars run` prints it.
-  void print(std::FILE* out, const std::string& policy, sim::SimTime from, sim::SimTime to, double wall_seconds,
+  void print(std::FILE* out, const std::string& policy, Time from, Time to, double wall_seconds,
              double speed) const;
   // The robots' and users' tracks and the transitions, marked where the first robot was then.
   // Needs keep_plot.
@@ -61,8 +61,8 @@ class RunSummary {
   const bool keep_plot_;
   mutable std::mutex mutex_;
   RunCounts counts_;
-  std::map<std::string, std::pair<int, sim::SimTime>> states_;  // times entered, time spent
-  std::map<std::string, sim::SimTime> entered_;                 // active states: since when
+  std::map<std::string, std::pair<int, Time>> states_;  // times entered, time spent
+  std::map<std::string, Time> entered_;                 // active states: since when
   std::vector<std::string> order_;
   std::vector<std::string> failures_;  // the first five
   std::map<std::string, std::string> device_state_;

@@ -40,9 +40,12 @@ struct ServerOptions {
   // The PLANET server: `tls` (docs/security.md), `access` (who may connect and call what; null:
   // anyone, so listen on loopback only), `logger`, limits and timeouts (docs/protocol.md).
   planet::CommunicatorOptions planet;
-  // The adaptor services made for registered devices' capabilities, and the registry's limits.
-  service::AdaptorFactory adaptors = service::AdaptorFactory::house();
+  // The adaptor services made for registered devices' capabilities (none known: every
+  // capability is a GenericAdaptor), the registry's limits, and the composers of adaptive
+  // services. A home's: home::adaptors() and home::composer() (icars/home/).
+  service::AdaptorFactory adaptors;
   service::RegistryOptions registry;
+  std::vector<service::MakeComposer> composers;
   // The behavior types policies may name.
   behavior::BehaviorRegistry behaviors;
   // Where policies are found by name (<dir>/<name>.xml); a path with '/' or .xml is used as is.
@@ -83,7 +86,7 @@ class MediatingServer {
   // The clock that behaviors' timers follow (the simulated house's, or one following a remote
   // house's time). Needed before the first run_policy(); the clock must outlive the server, or
   // stop() must have returned before it goes.
-  void use_clock(sim::SimClock& clock);
+  void use_clock(Clock& clock);
   // The behavior runtime (null before the first run_policy()).
   behavior::Runtime* runtime() { return runtime_.get(); }
 
@@ -111,7 +114,7 @@ class MediatingServer {
   behavior::Trace trace_;
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<service::ServiceFramework> framework_;
-  sim::SimClock* clock_ = nullptr;
+  Clock* clock_ = nullptr;
   std::unique_ptr<behavior::Runtime> runtime_;
   std::unique_ptr<behavior::Environment> environment_;
   std::unique_ptr<control::CollaborationManager> manager_;

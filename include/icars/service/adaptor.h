@@ -15,7 +15,6 @@
 #include <vector>
 
 #include "device.planet.h"
-#include "home.planet.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/proxy.h"
 #include "icars/service/service.h"
@@ -244,116 +243,6 @@ class SensorAdaptor : public AdaptorOf<Prx> {
   std::uint64_t events_since_bind_ = 0;  // events delivered since the reading was asked for
   Listeners<Event> events_;
   std::atomic<std::uint64_t> received_{0};
-};
-
-// --- The adaptors of the house's capabilities (idl/home.idl) ----------------------------------
-
-// The stateful house adaptors remember the TV's, light's and speaker's state after every
-// acknowledged command and restore it when the device comes back (Adaptor::restore).
-class TVControlService final : public AdaptorOf<home::TVControlPrx> {
- public:
-  TVControlService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("TVControl", d, c) {}
-  bool keeps_state() const override { return true; }
-
- protected:
-  bool is_command(std::string_view method) const override;
-  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
-  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
-};
-
-class LightService final : public AdaptorOf<home::LightPrx> {
- public:
-  LightService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("LightControl", d, c) {}
-  bool keeps_state() const override { return true; }
-
- protected:
-  bool is_command(std::string_view method) const override;
-  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
-  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
-};
-
-class SpeakerService final : public AdaptorOf<home::SpeakerPrx> {
- public:
-  SpeakerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("AudioControl", d, c) {}
-  bool keeps_state() const override { return true; }
-
- protected:
-  // What it plays and how loud; what it last said is not state to restore.
-  bool is_command(std::string_view method) const override;
-  void read_state(std::function<void(std::exception_ptr, DeviceState)> done) override;
-  void apply_state(const DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
-};
-
-class SpeechRecognizerService final : public AdaptorOf<home::SpeechRecognizerPrx> {
- public:
-  SpeechRecognizerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("SpeechRecognizer", d, c) {}
-};
-
-class CameraService final : public AdaptorOf<home::CameraPrx> {
- public:
-  CameraService(const df::DeviceInfo& d, const df::CapabilityInfo& c) : AdaptorOf("Camera", d, c) {}
-};
-
-class FaceRecognizerService final : public AdaptorOf<home::FaceRecognizerPrx> {
- public:
-  FaceRecognizerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("FaceRecognizer", d, c) {}
-};
-
-class ClockService final : public AdaptorOf<home::ClockPrx> {
- public:
-  ClockService(const df::DeviceInfo& d, const df::CapabilityInfo& c) : AdaptorOf("Clock", d, c) {}
-};
-
-class SimulationService final : public AdaptorOf<home::SimulationPrx> {
- public:
-  SimulationService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : AdaptorOf("Simulation", d, c) {}
-};
-
-class SoundSensor final : public SensorAdaptor<home::MicrophonePrx, home::SoundListener, home::SoundEvent,
-                                                home::SoundListener::on_sound> {
- public:
-  SoundSensor(const df::DeviceInfo& d, const df::CapabilityInfo& c) : SensorAdaptor("SoundSensor", d, c) {}
-};
-
-// The robot's wheels as a navigation service: go_to/go_to_waypoint/stop and position events.
-class NavigationService final : public SensorAdaptor<home::WheelsPrx, home::PositionListener, home::PositionEvent,
-                                                      home::PositionListener::on_position> {
- public:
-  NavigationService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : SensorAdaptor("Navigation", d, c) {}
-};
-
-class MotionSensorService final : public SensorAdaptor<home::MotionSensorPrx, home::MotionListener,
-                                                        home::MotionEvent, home::MotionListener::on_motion> {
- public:
-  MotionSensorService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : SensorAdaptor("MotionSensor", d, c) {}
-
- protected:
-  void reread(const home::MotionSensorPrx& sensor) override;
-  bool changed_from(const home::MotionEvent& last, const home::MotionEvent& reading) const override {
-    return last.motion != reading.motion;
-  }
-};
-
-class OccupancyService final
-    : public SensorAdaptor<home::OccupancySensorPrx, home::OccupancyListener, home::OccupancyEvent,
-                           home::OccupancyListener::on_occupancy> {
- public:
-  OccupancyService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
-      : SensorAdaptor("OccupancySensor", d, c) {}
-
- protected:
-  void reread(const home::OccupancySensorPrx& sensor) override;
-  bool changed_from(const home::OccupancyEvent& last, const home::OccupancyEvent& reading) const override {
-    return last.occupied != reading.occupied;
-  }
 };
 
 // A capability whose interface SF has no adaptor type for: still discoverable, by its

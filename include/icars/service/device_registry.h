@@ -29,7 +29,7 @@ class AdaptorFactory {
 
   void add(std::string interface_id, Make make) { makers_[std::move(interface_id)] = std::move(make); }
   // Capabilities of IDL interface I become services of adaptor class S (built as S(device,
-  // capability)): factory.add<home::Light, LightService>().
+  // capability)): factory.add<home::Light, home::LightService>().
   template <class I, class S>
   void add() {
     add(std::string(I::type_id), [](const df::DeviceInfo& d, const df::CapabilityInfo& c) -> std::shared_ptr<Adaptor> {
@@ -39,9 +39,6 @@ class AdaptorFactory {
   // The adaptor for `capability`; a GenericAdaptor when no maker knows its interface.
   std::shared_ptr<Adaptor> make(const df::DeviceInfo& device, const df::CapabilityInfo& capability) const;
   bool knows(const std::string& interface_id) const { return makers_.contains(interface_id); }
-
-  // The adaptors of every capability in idl/home.idl.
-  static AdaptorFactory house();
 
  private:
   std::map<std::string, Make> makers_;

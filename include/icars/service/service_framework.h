@@ -1,22 +1,36 @@
 // The Service Framework of a mediating server, assembled: the service container, the device
-// registry served at device::kRegistryPath, and the factories of the adaptive services.
+// registry served at device::kRegistryPath, and the composers of adaptive services.
 // Destroy it before its communicator (it stops taking registrations and connection events
 // first, so no callback reaches a destroyed container).
 #pragma once
 
+#include <functional>
 #include <memory>
+#include <vector>
 
 #include "icars/planet/communicator.h"
-#include "icars/service/composite.h"
 #include "icars/service/device_registry.h"
 #include "icars/service/service_container.h"
 
 namespace icars::service {
 
+// Builds adaptive services (ICARS paper 3.3, Fig. 4: composite and augmented services) out of
+// the services in a container for as long as it lives: it watches the container, adds a
+// composite once its parts are there and keeps it across their reconnections. The home's is
+// home::CompositeFactory; a plugin may add its own.
+class Composer {
+ public:
+  virtual ~Composer() = default;
+};
+using MakeComposer = std::function<std::unique_ptr<Composer>(ServiceContainer&)>;
+
 class ServiceFramework {
  public:
-  explicit ServiceFramework(planet::Communicator& communicator,
-                            AdaptorFactory adaptors = AdaptorFactory::house(), RegistryOptions options = {});
+  // `adaptors` makes the adaptor service of each capability a device registers (a capability
+  // no maker knows becomes a GenericAdaptor); `composers` are made once, over the container,
+  // and destroyed first.
+  explicit ServiceFramework(planet::Communicator& communicator, AdaptorFactory adaptors = {},
+                            RegistryOptions options = {}, const std::vector<MakeComposer>& composers = {});
   ~ServiceFramework();
   ServiceFramework(const ServiceFramework&) = delete;
   ServiceFramework& operator=(const ServiceFramework&) = delete;
@@ -28,7 +42,7 @@ class ServiceFramework {
   planet::Communicator& communicator_;
   ServiceContainer container_;
   std::shared_ptr<DeviceRegistry> registry_;
-  std::unique_ptr<CompositeFactory> composites_;
+  std::vector<std::unique_ptr<Composer>> composers_;
 };
 
 }  // namespace icars::service

@@ -18,7 +18,7 @@
 #include <string_view>
 #include <vector>
 
-#include "icars/sim/time.h"
+#include "icars/clock/time.h"
 
 namespace icars::sim {
 
@@ -93,7 +93,7 @@ enum class Activity { go_to, sit, lie, stand, say };
 std::string_view to_string(Activity activity);
 
 struct ScheduleEntry {
-  SimTime at;  // time of day
+  Time at;  // time of day
   Activity activity = Activity::stand;
   std::string target;  // go_to: waypoint, furniture or room; sit, lie: furniture
   std::string text;    // say
@@ -105,7 +105,7 @@ struct UserSpec {
   double speed = 1.0;         // m/s walking
   double radius = 0.2;        // m, for path planning
   double loudness_db = 60.0;  // speech level at 1 m
-  SimTime time_jitter{0};     // each activity starts up to this much early or late
+  Time time_jitter{0};     // each activity starts up to this much early or late
   double loudness_jitter_db = 0.0;
   bool daily = true;                    // the schedule repeats every day; false: day 0 only
   std::vector<ScheduleEntry> schedule;  // in time order
@@ -115,7 +115,7 @@ struct House {
   std::string name;
   Rect bounds;               // the rooms' bounding box
   double resolution = 0.05;  // m per planning grid cell
-  SimTime start_time{0};     // when the simulation starts (day 0)
+  Time start_time{0};     // when the simulation starts (day 0)
   std::uint64_t seed = 1;
   std::vector<Room> rooms;
   std::vector<Wall> walls;  // after the doors' gaps were cut

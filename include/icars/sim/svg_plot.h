@@ -11,8 +11,8 @@
 #include <utility>
 #include <vector>
 
+#include "icars/clock/time.h"
 #include "icars/sim/house.h"
-#include "icars/sim/time.h"
 
 namespace icars::sim {
 
@@ -20,11 +20,11 @@ inline constexpr double kSvgPixelsPerMetre = 80.0;
 
 struct PlotTrack {  // a moving thing's positions over the run, in time order
   std::string name;  // "robot1", "user1"
-  std::vector<std::pair<SimTime, Point>> points;
+  std::vector<std::pair<Time, Point>> points;
 };
 
 struct PlotMark {  // something worth pointing at: "RestMode", "found user1"
-  SimTime time{0};
+  Time time{0};
   Point at;
   std::string label;
 };

@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "icars/sim/clock.h"
+#include "icars/clock/sim_clock.h"
 #include "icars/sim/house.h"
 
 namespace icars::sim {
@@ -26,7 +26,7 @@ namespace icars::sim {
 struct Utterance {
   std::string user, text, room;
   Point at;
-  SimTime time{0};
+  Time time{0};
   double loudness_db = 60.0;  // at 1 m from the speaker
 };
 
@@ -41,21 +41,21 @@ struct UserState {
   friend bool operator==(const UserState&, const UserState&) = default;
 };
 
-// A robot's state as a device manager's state file keeps it (icars::device::SimStateFile):
+// A robot's state as a device manager's state file keeps it (home::SimStateFile):
 // where it stands, or the motion it is driving, which the clock alone carries on — so a
 // driving robot needs no write per step to be restored exactly.
 struct RobotState {
   std::string robot;
-  SimTime at{0};            // the clock's time when the state was taken
+  Time at{0};            // the clock's time when the state was taken
   Pose pose;                // where the robot was at `at`
   std::vector<Point> path;  // the path it is driving, from where it set off; empty: standing
-  SimTime start{0};         // when it set off along `path`
+  Time start{0};         // when it set off along `path`
   bool moving() const { return !path.empty(); }
   friend bool operator==(const RobotState&, const RobotState&) = default;
 };
 
 struct WorldOptions {
-  SimTime report_every{500};   // pose reports while a robot moves
+  Time report_every{500};   // pose reports while a robot moves
   double snap_distance = 1.5;  // m: a blocked move target is replaced by the nearest free spot
 };
 

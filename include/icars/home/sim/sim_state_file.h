@@ -30,7 +30,7 @@ namespace spdlog {
 class logger;
 }
 
-namespace icars::device {
+namespace icars::home {
 
 // The kept state of each kind of simulated actuator, with the state a new device starts in.
 struct SimTVState {
@@ -140,4 +140,4 @@ class SimStateFile {
   std::thread writer_;
 };
 
-}  // namespace icars::device
+}  // namespace icars::home

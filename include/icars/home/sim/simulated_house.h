@@ -11,10 +11,10 @@
 #include <set>
 #include <string>
 
+#include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
-#include "icars/device/sim_devices.h"
-#include "icars/device/sim_state_file.h"
-#include "icars/sim/clock.h"
+#include "icars/home/sim/sim_devices.h"
+#include "icars/home/sim/sim_state_file.h"
 #include "icars/sim/house.h"
 #include "icars/sim/world.h"
 
@@ -22,7 +22,7 @@ namespace spdlog {
 class logger;
 }
 
-namespace icars::device {
+namespace icars::home {
 
 struct SimulatedHouseOptions {
   double speedup = 1.0;           // simulated seconds per wall-clock second
@@ -50,19 +50,19 @@ class SimulatedHouse {
   void start(const std::string& host, std::uint16_t port);
 
   sim::World& world() { return *world_; }
-  sim::SimClock& clock() { return clock_; }
-  DeviceManager& manager() { return *manager_; }
+  SimClock& clock() { return clock_; }
+  device::DeviceManager& manager() { return *manager_; }
   SimStateFile* state_file() { return state_.get(); }  // null without one
   planet::Communicator& communicator() { return *communicator_; }
 
  private:
   SimulatedHouseOptions options_;
-  sim::SimClock clock_;
+  SimClock clock_;
   std::unique_ptr<sim::World> world_;
   std::unique_ptr<SimStateFile> state_;  // outlives the devices, not the world
   std::unique_ptr<planet::Communicator> communicator_;
-  std::unique_ptr<DeviceManager> manager_;
-  std::unique_ptr<sim::RealTimeDriver> driver_;
+  std::unique_ptr<device::DeviceManager> manager_;
+  std::unique_ptr<RealTimeDriver> driver_;
 };
 
-}  // namespace icars::device
+}  // namespace icars::home

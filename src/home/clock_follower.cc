@@ -1,10 +1,10 @@
-#include "icars/server/clock_follower.h"
+#include "icars/home/clock_follower.h"
 
-#include "icars/service/adaptor.h"
+#include "icars/home/adaptors.h"
 
-namespace icars::server {
+namespace icars::home {
 
-ClockFollower::ClockFollower(sim::SimClock& clock, service::ServiceContainer& services,
+ClockFollower::ClockFollower(SimClock& clock, service::ServiceContainer& services,
                              std::chrono::milliseconds every)
     : clock_(clock), services_(services), every_(every) {
   thread_ = std::thread([this] { run(); });
@@ -18,9 +18,9 @@ ClockFollower::~ClockFollower() {
 void ClockFollower::run() {
   while (!stop_) {
     const auto query = service::ServiceQuery::of_type("Simulation").available();
-    if (auto simulation = services_.find_first<service::SimulationService>(query)) {
+    if (auto simulation = services_.find_first<SimulationService>(query)) {
       try {
-        const sim::SimTime remote(simulation->proxy().now_ms());
+        const Time remote(simulation->proxy().now_ms());
         if (remote > clock_.now()) clock_.advance_to(remote);
         following_ = true;
       } catch (const std::exception&) {
@@ -31,4 +31,4 @@ void ClockFollower::run() {
   }
 }
 
-}  // namespace icars::server
+}  // namespace icars::home

@@ -1,7 +1,7 @@
 // The smart-home behaviors. Each one is an ECA behavior: entry binds services and subscribes,
 // handle_event holds its rules, every service call is asynchronous (the runtime never waits on
 // the network), and whatever it holds is released at exit by the behavior model.
-#include "icars/behavior/house_behaviors.h"
+#include "icars/home/behaviors.h"
 
 #include <fmt/format.h>
 
@@ -10,9 +10,10 @@
 #include <cmath>
 #include <set>
 
-namespace icars::behavior::house {
+namespace icars::home {
 
 namespace s = icars::service;
+using namespace icars::behavior;  // the behavior model these behaviors are written in
 
 namespace {
 
@@ -75,20 +76,20 @@ class Sense final : public Behavior {
     }
   }
   bool bind(const std::shared_ptr<s::Service>& sensor) {
-    if (auto o = std::dynamic_pointer_cast<s::OccupancyService>(sensor)) {
+    if (auto o = std::dynamic_pointer_cast<OccupancyService>(sensor)) {
       listen(o);
       if (report_current_ && o->available()) report_occupancy(o);
       return true;
     }
-    if (auto m = std::dynamic_pointer_cast<s::MotionSensorService>(sensor)) return listen(m), true;
-    if (auto sp = std::dynamic_pointer_cast<s::SpeechSensor>(sensor)) return listen(sp), true;
-    if (auto so = std::dynamic_pointer_cast<s::SoundSensor>(sensor)) return listen(so), true;
-    if (auto n = std::dynamic_pointer_cast<s::NavigationService>(sensor)) return listen(n), true;
-    if (auto u = std::dynamic_pointer_cast<s::UserLocator>(sensor)) return listen(u), true;
+    if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return listen(m), true;
+    if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) return listen(sp), true;
+    if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return listen(so), true;
+    if (auto n = std::dynamic_pointer_cast<NavigationService>(sensor)) return listen(n), true;
+    if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return listen(u), true;
     return false;
   }
   // The state now, as the sensor would have reported it when it last changed.
-  void report_occupancy(const std::shared_ptr<s::OccupancyService>& sensor) {
+  void report_occupancy(const std::shared_ptr<OccupancyService>& sensor) {
     invoke(*sensor, "furniture", [&](auto done) { sensor->proxy().furniture_async(done); },
            [this, sensor](std::exception_ptr e, std::string furniture = {}) {
              if (e) return;
@@ -119,7 +120,7 @@ class Driving : public Behavior {
   void bind_wheels(const std::string& robot) {
     auto query = of_type("Navigation");
     if (!robot.empty()) query.on_device(robot + "_wheels");
-    wheels_ = require<s::NavigationService>(query);
+    wheels_ = require<NavigationService>(query);
     listen(wheels_);
   }
   // The completion of a go_to: a refusal (no path, unknown target) ends the drive.
@@ -163,7 +164,7 @@ class Driving : public Behavior {
     }
   }
 
-  std::shared_ptr<s::NavigationService> wheels_;
+  std::shared_ptr<NavigationService> wheels_;
   std::function<void(bool)> arrived_;
 };
 
@@ -180,7 +181,7 @@ class GoToUser final : public Driving {
  protected:
   void entry() override {
     bind_wheels(robot_);
-    locator_ = require<s::UserLocator>(of_type("UserLocator"));
+    locator_ = require<UserLocator>(of_type("UserLocator"));
     if (search_.empty()) {
       std::set<std::string> rooms;
       for (const auto& service : services().all()) {
@@ -196,10 +197,10 @@ class GoToUser final : public Driving {
 
  private:
   std::string who() const { return user_.empty() ? "the user" : user_; }
-  static std::string format_duration(sim::SimTime d) { return fmt::format("{} s", d.count() / 1000); }
+  static std::string format_duration(Time d) { return fmt::format("{} s", d.count() / 1000); }
 
   void look() {
-    locator_->locate(guard([this](std::exception_ptr e, std::vector<s::UserLocation> seen) {
+    locator_->locate(guard([this](std::exception_ptr e, std::vector<UserLocation> seen) {
       if (e) {
         fail("could not look for the user: " + describe(e));
         return;
@@ -224,7 +225,7 @@ class GoToUser final : public Driving {
       search_next();
     });
   }
-  void approach(const s::UserLocation& u) {
+  void approach(const UserLocation& u) {
     drive_to(u.x, u.y,
              [this, u](bool ok) {
                if (!ok) {
@@ -244,8 +245,8 @@ class GoToUser final : public Driving {
   std::string user_;
   std::vector<std::string> search_;
   std::string robot_;
-  sim::SimTime timeout_;
-  std::shared_ptr<s::UserLocator> locator_;
+  Time timeout_;
+  std::shared_ptr<UserLocator> locator_;
   std::size_t next_ = 0;
 };
 
@@ -283,7 +284,7 @@ class PatrolHome final : public Driving {
     if (waypoints_.empty()) throw BehaviorError("no waypoints to patrol");
     bind_wheels(robot_);
     for (const auto& m : services().find(of_type("MotionSensor").available())) {
-      if (auto sensor = std::dynamic_pointer_cast<s::MotionSensorService>(m)) listen(sensor);
+      if (auto sensor = std::dynamic_pointer_cast<MotionSensorService>(m)) listen(sensor);
     }
     next_ = 0;
     round_ = 0;
@@ -353,7 +354,7 @@ class VoiceControl : public Behavior {
   void listen_to_speech() {
     const auto sensors = services().find(of_type("SpeechSensor").available());
     if (sensors.empty()) throw BehaviorError("no available SpeechSensor service");
-    for (const auto& sensor : sensors) listen(std::static_pointer_cast<s::SpeechSensor>(sensor));
+    for (const auto& sensor : sensors) listen(std::static_pointer_cast<SpeechSensor>(sensor));
   }
   void handle_event(const Event& e) override {
     if (e.type() == "SpeechEvent") on_command(lower(e.get<std::string>("text")));
@@ -373,7 +374,7 @@ class VoiceTVControl final : public VoiceControl {
   void entry() override {
     auto query = of_type("TVControl");
     if (!room_.empty()) query.in_room(room_);
-    tv_ = require<s::TVControlService>(query);
+    tv_ = require<TVControlService>(query);
     listen_to_speech();
   }
   void on_command(const std::string& text) override {
@@ -407,7 +408,7 @@ class VoiceTVControl final : public VoiceControl {
  private:
   std::string room_;
   int step_;
-  std::shared_ptr<s::TVControlService> tv_;
+  std::shared_ptr<TVControlService> tv_;
 };
 
 class VoiceAudioControl final : public VoiceControl {
@@ -417,7 +418,7 @@ class VoiceAudioControl final : public VoiceControl {
 
  protected:
   void entry() override {
-    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    speaker_ = require<SpeakerService>(of_type("AudioControl"));
     listen_to_speech();
   }
   void on_command(const std::string& text) override {
@@ -445,7 +446,7 @@ class VoiceAudioControl final : public VoiceControl {
  private:
   std::string track_;
   int step_;
-  std::shared_ptr<s::SpeakerService> speaker_;
+  std::shared_ptr<SpeakerService> speaker_;
 };
 
 // --- MoodControl ----------------------------------------------------------------------------------
@@ -460,7 +461,7 @@ class MoodControl final : public Behavior {
  protected:
   void entry() override {
     for (const auto& service : services().find(of_type("LightControl").available())) {
-      auto light = std::static_pointer_cast<s::LightService>(service);
+      auto light = std::static_pointer_cast<LightService>(service);
       if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;
       if (intensity_ == 0) {
         invoke(*light, "set_power(false)", [&](auto done) { light->proxy().set_power_async(false, done); }, tolerate());
@@ -469,7 +470,7 @@ class MoodControl final : public Behavior {
                [&](auto done) { light->proxy().set_intensity_async(intensity_, done); }, tolerate());
       }
     }
-    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    speaker_ = require<SpeakerService>(of_type("AudioControl"));
     invoke(*speaker_, fmt::format("set_volume({})", volume_),
            [&](auto done) { speaker_->proxy().set_volume_async(volume_, done); }, tolerate());
     invoke(*speaker_, fmt::format("play({})", track_), [&](auto done) { speaker_->proxy().play_async(track_, done); });
@@ -500,8 +501,8 @@ class MoodControl final : public Behavior {
   int intensity_;
   std::string track_;
   int volume_;
-  sim::SimTime duration_;
-  std::shared_ptr<s::SpeakerService> speaker_;
+  Time duration_;
+  std::shared_ptr<SpeakerService> speaker_;
   bool playing_ = false;
 };
 
@@ -513,14 +514,14 @@ class Speak final : public Behavior {
 
  protected:
   void entry() override {
-    speaker_ = require<s::SpeakerService>(of_type("AudioControl"));
+    speaker_ = require<SpeakerService>(of_type("AudioControl"));
     invoke(*speaker_, fmt::format("speak(\"{}\")", text_), [&](auto done) { speaker_->proxy().speak_async(text_, done); },
            [this](std::exception_ptr e) { e ? fail(call_error("speak", e)) : succeed(); });
   }
 
  private:
   std::string text_;
-  std::shared_ptr<s::SpeakerService> speaker_;
+  std::shared_ptr<SpeakerService> speaker_;
 };
 
 class SetLights final : public Behavior {
@@ -532,7 +533,7 @@ class SetLights final : public Behavior {
     auto lights = services().find(of_type("LightControl").available());
     pending_ = 0;
     for (const auto& service : lights) {
-      auto light = std::static_pointer_cast<s::LightService>(service);
+      auto light = std::static_pointer_cast<LightService>(service);
       if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;
       ++pending_;
       invoke(*light, fmt::format("set_power({})", on_), [&](auto done) { light->proxy().set_power_async(on_, done); },
@@ -553,7 +554,7 @@ class SetLights final : public Behavior {
 
 }  // namespace
 
-void register_house_behaviors(BehaviorRegistry& registry) {
+void register_behaviors(BehaviorRegistry& registry) {
   using T = ParamType;
   registry.add<Sense>("Sense", "propagates the events of sensor services",
                       {param("service", T::string, std::nullopt,
@@ -594,11 +595,11 @@ void register_house_behaviors(BehaviorRegistry& registry) {
                            param("rooms", T::list, "", "lights of these rooms (default: all)")});
 }
 
-BehaviorRegistry make_house_registry() {
+BehaviorRegistry behavior_registry() {
   BehaviorRegistry registry;
   register_generic_behaviors(registry);
-  register_house_behaviors(registry);
+  register_behaviors(registry);
   return registry;
 }
 
-}  // namespace icars::behavior::house
+}  // namespace icars::home

@@ -1,12 +1,12 @@
-#include "icars/service/composite.h"
+#include "icars/home/services.h"
 
-namespace icars::service {
+namespace icars::home {
 
 // --- SpeechSensor ----------------------------------------------------------------------------
 
 SpeechSensor::SpeechSensor(std::shared_ptr<SoundSensor> sound,
                            std::shared_ptr<SpeechRecognizerService> recognizer)
-    : Service(sound->attributes().device + ".speech_sensor", "SpeechSensor", sound->attributes()),
+    : service::Service(sound->attributes().device + ".speech_sensor", "SpeechSensor", sound->attributes()),
       sound_(std::move(sound)),
       recognizer_(std::move(recognizer)) {
   sound_subscription_ = sound_->subscribe([this](const home::SoundEvent& e) { on_sound(e); });
@@ -130,7 +130,7 @@ void SpeechSensor::settle(std::uint64_t seq, std::optional<SpeechEvent> speech) 
 // --- CameraFactory ---------------------------------------------------------------------------
 
 CameraFactory::CameraFactory(std::shared_ptr<CameraService> camera, std::chrono::milliseconds max_age)
-    : Service(camera->attributes().device + ".camera_factory", "CameraFactory", camera->attributes()),
+    : service::Service(camera->attributes().device + ".camera_factory", "CameraFactory", camera->attributes()),
       camera_(std::move(camera)),
       max_age_(max_age) {
   watch_ = camera_->watch([this](const bool& available) { set_available(available); });
@@ -174,7 +174,7 @@ void CameraFactory::capture(Capture done) {
 
 UserLocator::UserLocator(std::shared_ptr<CameraFactory> camera,
                          std::shared_ptr<FaceRecognizerService> faces)
-    : Service(camera->attributes().device + ".user_locator", "UserLocator", camera->attributes()),
+    : service::Service(camera->attributes().device + ".user_locator", "UserLocator", camera->attributes()),
       camera_(std::move(camera)),
       faces_(std::move(faces)) {
   camera_watch_ = camera_->watch([this](const bool&) { update_availability(); });
@@ -217,10 +217,10 @@ void UserLocator::locate(std::function<void(std::exception_ptr, const std::vecto
 
 // --- CompositeFactory ------------------------------------------------------------------------
 
-CompositeFactory::CompositeFactory(ServiceContainer& container, std::chrono::milliseconds camera_max_age)
+CompositeFactory::CompositeFactory(service::ServiceContainer& container, std::chrono::milliseconds camera_max_age)
     : container_(container), camera_max_age_(camera_max_age) {
-  watch_ = container_.watch([this](const std::shared_ptr<Service>&, const ServiceChange& change) {
-    if (change == ServiceChange::added) compose();
+  watch_ = container_.watch([this](const std::shared_ptr<service::Service>&, const service::ServiceChange& change) {
+    if (change == service::ServiceChange::added) compose();
   });
   compose();
 }
@@ -229,24 +229,24 @@ CompositeFactory::~CompositeFactory() { container_.remove_watcher(watch_); }
 
 void CompositeFactory::compose() {
   std::lock_guard lock(mutex_);  // recursive: adding a composite notifies this watcher again
-  auto recognizer = container_.find_first<SpeechRecognizerService>(ServiceQuery::of_type("SpeechRecognizer"));
+  auto recognizer = container_.find_first<SpeechRecognizerService>(service::ServiceQuery::of_type("SpeechRecognizer"));
   if (recognizer) {
-    for (auto& s : container_.find(ServiceQuery::of_type("SoundSensor"))) {
+    for (auto& s : container_.find(service::ServiceQuery::of_type("SoundSensor"))) {
       auto sound = std::dynamic_pointer_cast<SoundSensor>(s);
       if (sound && !container_.get(sound->attributes().device + ".speech_sensor")) {
         container_.add(std::make_shared<SpeechSensor>(sound, recognizer));
       }
     }
   }
-  for (auto& s : container_.find(ServiceQuery::of_type("Camera"))) {
+  for (auto& s : container_.find(service::ServiceQuery::of_type("Camera"))) {
     auto camera = std::dynamic_pointer_cast<CameraService>(s);
     if (camera && !container_.get(camera->attributes().device + ".camera_factory")) {
       container_.add(std::make_shared<CameraFactory>(camera, camera_max_age_));
     }
   }
-  auto faces = container_.find_first<FaceRecognizerService>(ServiceQuery::of_type("FaceRecognizer"));
+  auto faces = container_.find_first<FaceRecognizerService>(service::ServiceQuery::of_type("FaceRecognizer"));
   if (faces) {
-    for (auto& s : container_.find(ServiceQuery::of_type("CameraFactory"))) {
+    for (auto& s : container_.find(service::ServiceQuery::of_type("CameraFactory"))) {
       auto camera = std::dynamic_pointer_cast<CameraFactory>(s);
       if (camera && !container_.get(camera->attributes().device + ".user_locator")) {
         container_.add(std::make_shared<UserLocator>(camera, faces));
@@ -255,4 +255,10 @@ void CompositeFactory::compose() {
   }
 }
 
-}  // namespace icars::service
+service::MakeComposer composer(std::chrono::milliseconds camera_max_age) {
+  return [camera_max_age](service::ServiceContainer& container) -> std::unique_ptr<service::Composer> {
+    return std::make_unique<CompositeFactory>(container, camera_max_age);
+  };
+}
+
+}  // namespace icars::home

@@ -1,5 +1,5 @@
-// The simulation clock: deterministic discrete-event time, optionally driven at a multiple of
-// wall-clock speed.
+// The simulated clock: deterministic discrete-event time, optionally driven at a multiple of
+// wall-clock speed. The simulated house runs on it, and so do the tests of every layer above.
 //
 // Everything in the simulated house happens as events on one SimClock: a user's scheduled
 // activity, a step of a robot's motion, the delivery of an utterance. Events run in time
@@ -18,49 +18,49 @@
 #include <unordered_map>
 #include <utility>
 
-#include "icars/sim/time.h"
+#include "icars/clock/clock.h"
 
-namespace icars::sim {
+namespace icars {
 
 // A discrete-event clock. All methods are thread-safe; events run on the thread that calls
 // advance_to/advance_by, never under the clock's lock, so an event may schedule, cancel or
 // query freely (but not advance the clock: that throws std::logic_error).
-class SimClock {
+class SimClock final : public Clock {
  public:
-  explicit SimClock(SimTime start = SimTime{0});
+  explicit SimClock(Time start = Time{0});
   SimClock(const SimClock&) = delete;
   SimClock& operator=(const SimClock&) = delete;
 
-  SimTime now() const;
+  Time now() const override;
 
   // Runs `fn` once the clock reaches `t`; a time in the past means "at the next advance".
   // Events with equal times run in the order they were scheduled. Returns an id for cancel().
-  std::uint64_t schedule_at(SimTime t, std::function<void()> fn);
-  std::uint64_t schedule_after(SimTime delay, std::function<void()> fn);
+  std::uint64_t schedule_at(Time t, std::function<void()> fn) override;
+  std::uint64_t schedule_after(Time delay, std::function<void()> fn) override;
 
   // True if the event was pending and will now never run; false if it already ran, is
   // running, was cancelled before, or never existed.
-  bool cancel(std::uint64_t id);
+  bool cancel(std::uint64_t id) override;
 
   // Runs every event due at or before `t`, in order, including events those events schedule
   // for times <= t; during each event now() is that event's time. Afterwards now() == t
   // (time never goes back: a `t` before now() only runs the events already due). Calls from
   // two threads are serialized. If an event throws, the exception propagates with now() at
   // that event's time and later events still pending.
-  void advance_to(SimTime t);
-  void advance_by(SimTime d);
+  void advance_to(Time t);
+  void advance_by(Time d);
 
   std::size_t pending() const;
-  std::optional<SimTime> next_event_time() const;
+  std::optional<Time> next_event_time() const;
 
  private:
-  using Key = std::pair<SimTime, std::uint64_t>;  // (time, id): ids grow, so ties stay FIFO
+  using Key = std::pair<Time, std::uint64_t>;  // (time, id): ids grow, so ties stay FIFO
 
   mutable std::mutex mutex_;
-  SimTime now_;
+  Time now_;
   std::uint64_t next_id_ = 1;
   std::map<Key, std::function<void()>> queue_;
-  std::unordered_map<std::uint64_t, SimTime> times_;  // id -> time, for cancel()
+  std::unordered_map<std::uint64_t, Time> times_;  // id -> time, for cancel()
 
   std::mutex advance_mutex_;          // one advancing thread at a time
   std::thread::id advancing_thread_;  // guarded by mutex_
@@ -73,7 +73,7 @@ class SimClock {
 // while the driver runs.
 class RealTimeDriver {
  public:
-  RealTimeDriver(SimClock& clock, double speedup, SimTime tick = SimTime{100});
+  RealTimeDriver(SimClock& clock, double speedup, Time tick = Time{100});
   ~RealTimeDriver();  // stops
   RealTimeDriver(const RealTimeDriver&) = delete;
   RealTimeDriver& operator=(const RealTimeDriver&) = delete;
@@ -84,15 +84,15 @@ class RealTimeDriver {
   double speedup() const { return speedup_; }
 
  private:
-  void run(std::chrono::steady_clock::time_point wall_start, SimTime sim_start);
+  void run(std::chrono::steady_clock::time_point wall_start, Time sim_start);
 
   SimClock& clock_;
   const double speedup_;
-  const SimTime tick_;
+  const Time tick_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
   bool stopping_ = false;
   std::thread thread_;
 };
 
-}  // namespace icars::sim
+}  // namespace icars

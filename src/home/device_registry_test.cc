@@ -13,14 +13,16 @@
 
 #include "child_process.h"
 #include "icars/device/device_manager.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/services.h"
 #include "icars/planet/publisher.h"
-#include "icars/service/composite.h"
 #include "icars/service/device_registry.h"
 #include "icars/service/service_framework.h"
 
-namespace icars::service {
+namespace icars::home {
 namespace {
 
+using namespace icars::service;
 using namespace std::chrono_literals;
 namespace p = icars::planet;
 
@@ -108,7 +110,7 @@ class SF : public ::testing::Test {
   void SetUp() override { port_ = server_.listen("127.0.0.1", 0); }
 
   p::Communicator server_;
-  service::ServiceFramework sf_{server_};
+  service::ServiceFramework sf_{server_, adaptors(), {}, {composer()}};
   ServiceContainer& container_ = sf_.container();
   DeviceRegistry* registry_ = &sf_.registry();
   std::uint16_t port_ = 0;
@@ -250,7 +252,7 @@ TEST_F(SF, ServicesFollowTheirDevicesConnection) {
 
 TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
   auto server = std::make_unique<p::Communicator>();
-  auto sf = std::make_unique<service::ServiceFramework>(*server);
+  auto sf = std::make_unique<service::ServiceFramework>(*server, adaptors(), service::RegistryOptions{}, std::vector{composer()});
   const auto port = server->listen("127.0.0.1", 0);
   DeviceSide devices(port);
   ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
@@ -259,7 +261,7 @@ TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
   sf.reset();  // the server goes down...
   server.reset();
   server = std::make_unique<p::Communicator>();  // ...and comes back on the same port, empty
-  sf = std::make_unique<service::ServiceFramework>(*server);
+  sf = std::make_unique<service::ServiceFramework>(*server, adaptors(), service::RegistryOptions{}, std::vector{composer()});
   ASSERT_EQ(server->listen("127.0.0.1", port), port);
   ASSERT_TRUE(devices.manager.wait_registered(2, 30s)) << devices.manager.last_error();
   EXPECT_EQ(sf->container().all().size(), 5u);
@@ -290,4 +292,4 @@ TEST_F(SF, BadRegistrationsAreRefusedWithAReason) {
 }
 
 }  // namespace
-}  // namespace icars::service
+}  // namespace icars::home

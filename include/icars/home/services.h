@@ -1,5 +1,6 @@
-// Adaptive services (ICARS paper 3.3, 4.3.1, Figs. 4 and 10b): services composed from or
-// augmenting other services, built by factories that watch the service container.
+// The adaptive services of the home (ICARS paper 3.3, 4.3.1, Figs. 4 and 10b): services composed
+// from or augmenting the home's adaptor services, built by a service::Composer that watches the
+// service container (home::composer() for a ServerOptions or a ServiceFramework).
 //
 // - SpeechSensor = SoundSensor + SpeechRecognizer: every sound event's audio is recognized and
 //   published as a SpeechEvent carrying the text.
@@ -22,10 +23,11 @@
 #include <string>
 #include <vector>
 
-#include "icars/service/adaptor.h"
+#include "icars/home/adaptors.h"
 #include "icars/service/service_container.h"
+#include "icars/service/service_framework.h"
 
-namespace icars::service {
+namespace icars::home {
 
 struct SpeechEvent {
   std::string text;
@@ -36,7 +38,7 @@ struct SpeechEvent {
   std::int64_t time_ms = 0;
 };
 
-class SpeechSensor final : public Service {
+class SpeechSensor final : public service::Service {
  public:
   SpeechSensor(std::shared_ptr<SoundSensor> sound, std::shared_ptr<SpeechRecognizerService> recognizer);
   ~SpeechSensor() override;
@@ -77,7 +79,7 @@ class SpeechSensor final : public Service {
   std::uint64_t sound_subscription_ = 0;
   std::uint64_t sound_watch_ = 0;
   std::uint64_t recognizer_watch_ = 0;
-  Listeners<SpeechEvent> events_;
+  service::Listeners<SpeechEvent> events_;
   std::atomic<std::uint64_t> recognized_{0};
   std::atomic<std::uint64_t> rejected_{0};
   std::atomic<std::uint64_t> retried_{0};
@@ -91,7 +93,7 @@ class SpeechSensor final : public Service {
 
 // A shared camera: `capture` completes with the newest image no older than max_age, taking a
 // new one (one remote call for all waiting users) when needed.
-class CameraFactory final : public Service {
+class CameraFactory final : public service::Service {
  public:
   using Capture = std::function<void(std::exception_ptr, const home::Image&)>;
   CameraFactory(std::shared_ptr<CameraService> camera, std::chrono::milliseconds max_age);
@@ -121,7 +123,7 @@ struct UserLocation {
   std::int64_t time_ms = 0;
 };
 
-class UserLocator final : public Service {
+class UserLocator final : public service::Service {
  public:
   UserLocator(std::shared_ptr<CameraFactory> camera, std::shared_ptr<FaceRecognizerService> faces);
   ~UserLocator() override;
@@ -138,33 +140,36 @@ class UserLocator final : public Service {
   std::shared_ptr<FaceRecognizerService> faces_;
   std::uint64_t camera_watch_ = 0;
   std::uint64_t faces_watch_ = 0;
-  Listeners<UserLocation> events_;
+  service::Listeners<UserLocation> events_;
 };
 
 // Builds the adaptive services of the house as their parts appear in the container:
 // a SpeechSensor per SoundSensor (with the first SpeechRecognizer), a CameraFactory per Camera,
 // and a UserLocator per CameraFactory (with the first FaceRecognizer).
-class CompositeFactory {
+class CompositeFactory final : public service::Composer {
  public:
   // camera_max_age is wall-clock time: with a simulated house running at 1000x, 200 ms are minutes
   // of simulated time and a robot that moved meanwhile would be shown an old room. By default
   // only a capture in flight is shared.
-  explicit CompositeFactory(ServiceContainer& container,
+  explicit CompositeFactory(service::ServiceContainer& container,
                             std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(0));
-  ~CompositeFactory();
+  ~CompositeFactory() override;
   CompositeFactory(const CompositeFactory&) = delete;
   CompositeFactory& operator=(const CompositeFactory&) = delete;
 
  private:
   void compose();
-  ServiceContainer& container_;
+  service::ServiceContainer& container_;
   std::chrono::milliseconds camera_max_age_;
   std::uint64_t watch_ = 0;
   std::recursive_mutex mutex_;
 };
 
-}  // namespace icars::service
+// A CompositeFactory for every ServiceFramework made with it (ServerOptions::composers).
+service::MakeComposer composer(std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(0));
+
+}  // namespace icars::home
 
 // The composites' events are typed PLANET events, so behaviors see them like any sensor's.
-PLANET_EVENT(icars::service::SpeechEvent, text, confidence, direction, room, device, time_ms);
-PLANET_EVENT(icars::service::UserLocation, person, x, y, confidence, camera, time_ms);
+PLANET_EVENT(icars::home::SpeechEvent, text, confidence, direction, room, device, time_ms);
+PLANET_EVENT(icars::home::UserLocation, person, x, y, confidence, camera, time_ms);

@@ -16,13 +16,16 @@
 
 #include "child_process.h"
 #include "icars/device/device_manager.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/services.h"
 #include "icars/planet/publisher.h"
 #include "icars/service/device_registry.h"
 #include "icars/service/service_framework.h"
 
-namespace icars::service {
+namespace icars::home {
 namespace {
 
+using namespace icars::service;
 using namespace std::chrono_literals;
 namespace p = icars::planet;
 
@@ -123,7 +126,7 @@ struct Client {
     registry = df::DeviceRegistryPrx(communicator, peer, std::string(device::kRegistryPath));
   }
   static df::DeviceInfo device(const std::string& id, const std::string& path = "/devices/x/tv_control") {
-    return df::DeviceInfo{id, "TV", "living_room", "", {df::CapabilityInfo{"tv_control", "home::TVControl", path}}};
+    return df::DeviceInfo{id, "TV", "living_room", "", {df::CapabilityInfo{"tv_control", "icars::home::TVControl", path}}};
   }
 };
 
@@ -146,7 +149,7 @@ class Ownership : public ::testing::Test {
  protected:
   // Devices gone for `forget_after` are forgotten: soon, for the tests of forgetting.
   explicit Ownership(std::chrono::milliseconds forget_after = 500ms)
-      : server_(server_options(home_access())), sf_(server_, AdaptorFactory::house(), registry_options(forget_after)) {
+      : server_(server_options(home_access())), sf_(server_, adaptors(), registry_options(forget_after), {composer()}) {
     port_ = server_.listen("127.0.0.1", 0);
     devices_ = sf_.container().watch_devices([this](const p::Event& e) {
       std::lock_guard lock(mutex_);
@@ -325,7 +328,7 @@ TEST(AnonymousRegistry, IsBoundedWithoutAnAccessPolicy) {
   p::Communicator server;
   RegistryOptions options;
   options.max_anonymous_devices = 5;
-  ServiceFramework sf(server, AdaptorFactory::house(), options);
+  ServiceFramework sf(server, adaptors(), options, {composer()});
   Client client(server.listen("127.0.0.1", 0), "");
   for (int i = 0; i < 5; ++i) client.registry.register_device(Client::device(fmt::format("d{}", i)));
   EXPECT_EQ(refusal([&] { client.registry.register_device(Client::device("d5")); }),
@@ -412,7 +415,7 @@ TEST(RestoreReportOnly, TellsWithoutReapplying) {
   p::Communicator server;
   RegistryOptions options;
   options.reapply_state = false;
-  ServiceFramework sf(server, AdaptorFactory::house(), options);
+  ServiceFramework sf(server, adaptors(), options, {composer()});
   const auto port = server.listen("127.0.0.1", 0);
   std::mutex mutex;
   std::vector<p::Event> restored;
@@ -496,4 +499,4 @@ TEST_F(Restore, AnEventThatOvertakesTheReadingIsNotUndone) {
 }
 
 }  // namespace
-}  // namespace icars::service
+}  // namespace icars::home

@@ -1,13 +1,13 @@
-#include "icars/sim/time.h"
+#include "icars/clock/time.h"
 
 #include <fmt/format.h>
 
 #include <array>
 #include <charconv>
 
-namespace icars::sim {
+namespace icars {
 
-std::string format_time(SimTime t) {
+std::string format_time(Time t) {
   const auto ms = t.count();
   const auto day = ms / kDay.count();
   auto rest = ms % kDay.count();
@@ -38,7 +38,7 @@ std::optional<int> two_digits(std::string_view s, int max) {
 
 }  // namespace
 
-std::optional<SimTime> parse_time_of_day(std::string_view text) {
+std::optional<Time> parse_time_of_day(std::string_view text) {
   // "H:MM" is accepted too: people write 7:30.
   const auto colon = text.find(':');
   if (colon == std::string_view::npos) return std::nullopt;
@@ -63,4 +63,4 @@ std::optional<SimTime> parse_time_of_day(std::string_view text) {
          std::chrono::seconds(*seconds);
 }
 
-}  // namespace icars::sim
+}  // namespace icars

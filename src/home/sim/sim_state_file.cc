@@ -1,4 +1,4 @@
-#include "icars/device/sim_state_file.h"
+#include "icars/home/sim/sim_state_file.h"
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -17,9 +17,9 @@
 #include <stdexcept>
 #include <system_error>
 
-#include "icars/sim/time.h"
+#include "icars/clock/time.h"
 
-namespace icars::device {
+namespace icars::home {
 
 namespace {
 
@@ -188,7 +188,7 @@ void SimStateFile::load() {
       throw Invalid(fmt::format("written for house \"{}\", this manager runs house \"{}\"", house,
                                 world_.house().name));
     }
-    const sim::SimTime at{field<std::int64_t>(doc, "time_ms", "the file")};
+    const Time at{field<std::int64_t>(doc, "time_ms", "the file")};
 
     // The devices: exactly the hosted ones, of the same types, with their kept state.
     const json& devices = object_member(doc, "devices", "the file");
@@ -258,7 +258,7 @@ void SimStateFile::load() {
           }
           state.path.push_back({p[0].get<double>(), p[1].get<double>()});
         }
-        state.start = sim::SimTime{field<std::int64_t>(r, "start_ms", where)};
+        state.start = Time{field<std::int64_t>(r, "start_ms", where)};
       }
       try {
         world_.check_robot_state(state);
@@ -278,7 +278,7 @@ void SimStateFile::load() {
     loaded_ = Loaded::restored;
     log_->info("state file {}: restored {} devices and {} robots as of {}", path_.string(),
                tvs_.size() + lights_.size() + speakers_.size(), saved_robots_.size(),
-               sim::format_time(at));
+               format_time(at));
   } catch (const Invalid& e) {
     loaded_ = Loaded::rejected;
     rejection_ = e.what();
@@ -399,7 +399,7 @@ std::string SimStateFile::render() const {
   doc["house"] = world_.house().name;
   const auto at = robots.empty() ? world_.clock().now() : robots.front().at;
   doc["time_ms"] = at.count();
-  doc["time"] = sim::format_time(at);
+  doc["time"] = format_time(at);
   json devices = json::object();
   {
     std::lock_guard lock(mutex_);
@@ -473,4 +473,4 @@ void SimStateFile::write_loop() {
   }
 }
 
-}  // namespace icars::device
+}  // namespace icars::home

@@ -10,7 +10,7 @@
 //   PatrolHome         drives a round of waypoints, reporting motion it sees
 //   GoTo, Speak, SetLights   single actions, for composing other applications
 //
-// register_house_behaviors() adds them all, with their declared parameters, to a registry.
+// register_behaviors() adds them all, with their declared parameters, to a registry.
 #pragma once
 
 #include <memory>
@@ -19,27 +19,27 @@
 
 #include "icars/behavior/behavior.h"
 #include "icars/behavior/registry.h"
-#include "icars/service/adaptor.h"
-#include "icars/service/composite.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/services.h"
 
-namespace icars::behavior::house {
+namespace icars::home {
 
-void register_house_behaviors(BehaviorRegistry& registry);
+void register_behaviors(behavior::BehaviorRegistry& registry);
 // A registry with the generic behaviors (Wait, Emit) and the house behaviors: what `icars` runs.
-BehaviorRegistry make_house_registry();
+behavior::BehaviorRegistry behavior_registry();
 
 // Fig. 11b: binds the robot's wheels and sound sensor at entry; on every sound turns the
 // robot towards where it came from.
-class LookAtSound : public Behavior {
+class LookAtSound : public behavior::Behavior {
  public:
-  explicit LookAtSound(const Params& p) : min_level_db_(p.number("min_level_db")) {}
+  explicit LookAtSound(const behavior::Params& p) : min_level_db_(p.number("min_level_db")) {}
 
  protected:
   void entry() override {
-    wheels_ = require<service::NavigationService>(of_type("Navigation"));
-    listen(require<service::SoundSensor>(of_type("SoundSensor")));
+    wheels_ = require<NavigationService>(of_type("Navigation"));
+    listen(require<SoundSensor>(of_type("SoundSensor")));
   }
-  void handle_event(const Event& e) override {
+  void handle_event(const behavior::Event& e) override {
     if (e.type() == "SoundEvent" && e.get<double>("level_db") >= min_level_db_) {
       const double direction = e.get<double>("direction");
       invoke(*wheels_, "turn_to(" + std::to_string(direction) + ")",
@@ -49,7 +49,7 @@ class LookAtSound : public Behavior {
 
  private:
   double min_level_db_;
-  std::shared_ptr<service::NavigationService> wheels_;
+  std::shared_ptr<NavigationService> wheels_;
 };
 
-}  // namespace icars::behavior::house
+}  // namespace icars::home

@@ -27,13 +27,13 @@
 #include <string>
 #include <vector>
 
+#include "icars/clock/sim_clock.h"
 #include "icars/device/device.h"
-#include "icars/device/sim_state_file.h"
+#include "icars/home/sim/sim_state_file.h"
 #include "icars/planet/communicator.h"
-#include "icars/sim/clock.h"
 #include "icars/sim/world.h"
 
-namespace icars::device {
+namespace icars::home {
 
 // Simulated speech audio: what a simulated microphone records when someone speaks, 16 kHz
 // 16-bit PCM whose first samples carry the words, so a simulated recognizer can "hear" them.
@@ -53,7 +53,7 @@ struct SimulatedSpeech {
 // The request id names the command, so a caller's record of the calls it sent can be matched
 // with what the devices executed (each command exactly once).
 struct DeviceEffect {
-  sim::SimTime time{0};  // the clock's time when the command took effect
+  Time time{0};  // the clock's time when the command took effect
   std::string device;    // "tv"
   std::string what;      // "power", "channel", "volume", "intensity", "playing", "stopped",
                          // "spoke"; the wheels: "heading" (go_to...), "halted", "turned"
@@ -81,10 +81,10 @@ struct SimContext {
 };
 
 // The device for a device of the house; throws std::invalid_argument for an unknown type.
-std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context);
+std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context);
 // The software devices every simulated house gets: a speech engine and a vision engine.
-std::vector<std::shared_ptr<Device>> make_sim_engines(SimContext context);
+std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context);
 // The pseudo-device "simulator" with its Simulation capability.
-std::shared_ptr<Device> make_simulator_device(SimContext context);
+std::shared_ptr<device::Device> make_simulator_device(SimContext context);
 
-}  // namespace icars::device
+}  // namespace icars::home

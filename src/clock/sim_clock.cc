@@ -1,18 +1,18 @@
-#include "icars/sim/clock.h"
+#include "icars/clock/sim_clock.h"
 
 #include <cmath>
 #include <stdexcept>
 
-namespace icars::sim {
+namespace icars {
 
-SimClock::SimClock(SimTime start) : now_(start) {}
+SimClock::SimClock(Time start) : now_(start) {}
 
-SimTime SimClock::now() const {
+Time SimClock::now() const {
   std::lock_guard lock(mutex_);
   return now_;
 }
 
-std::uint64_t SimClock::schedule_at(SimTime t, std::function<void()> fn) {
+std::uint64_t SimClock::schedule_at(Time t, std::function<void()> fn) {
   std::lock_guard lock(mutex_);
   if (t < now_) t = now_;
   const auto id = next_id_++;
@@ -21,9 +21,9 @@ std::uint64_t SimClock::schedule_at(SimTime t, std::function<void()> fn) {
   return id;
 }
 
-std::uint64_t SimClock::schedule_after(SimTime delay, std::function<void()> fn) {
+std::uint64_t SimClock::schedule_after(Time delay, std::function<void()> fn) {
   std::lock_guard lock(mutex_);
-  const auto t = now_ + (delay < SimTime{0} ? SimTime{0} : delay);
+  const auto t = now_ + (delay < Time{0} ? Time{0} : delay);
   const auto id = next_id_++;
   queue_.emplace(Key{t, id}, std::move(fn));
   times_.emplace(id, t);
@@ -42,7 +42,7 @@ bool SimClock::cancel(std::uint64_t id) {
   return true;
 }
 
-void SimClock::advance_to(SimTime t) {
+void SimClock::advance_to(Time t) {
   {
     std::lock_guard lock(mutex_);
     if (advancing_thread_ == std::this_thread::get_id()) {
@@ -79,14 +79,14 @@ void SimClock::advance_to(SimTime t) {
   }
 }
 
-void SimClock::advance_by(SimTime d) { advance_to(now() + d); }
+void SimClock::advance_by(Time d) { advance_to(now() + d); }
 
 std::size_t SimClock::pending() const {
   std::lock_guard lock(mutex_);
   return queue_.size();
 }
 
-std::optional<SimTime> SimClock::next_event_time() const {
+std::optional<Time> SimClock::next_event_time() const {
   std::lock_guard lock(mutex_);
   if (queue_.empty()) return std::nullopt;
   return queue_.begin()->first.first;
@@ -94,12 +94,12 @@ std::optional<SimTime> SimClock::next_event_time() const {
 
 // --- RealTimeDriver ------------------------------------------------------------------------
 
-RealTimeDriver::RealTimeDriver(SimClock& clock, double speedup, SimTime tick)
+RealTimeDriver::RealTimeDriver(SimClock& clock, double speedup, Time tick)
     : clock_(clock), speedup_(speedup), tick_(tick) {
   if (!(speedup > 0) || !std::isfinite(speedup)) {
     throw std::invalid_argument("RealTimeDriver: speedup must be a positive number");
   }
-  if (tick <= SimTime{0}) throw std::invalid_argument("RealTimeDriver: tick must be positive");
+  if (tick <= Time{0}) throw std::invalid_argument("RealTimeDriver: tick must be positive");
 }
 
 RealTimeDriver::~RealTimeDriver() { stop(); }
@@ -129,13 +129,13 @@ bool RealTimeDriver::running() const {
   return thread_.joinable();
 }
 
-void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, SimTime sim_start) {
+void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, Time sim_start) {
   using namespace std::chrono;
-  const auto wall_for = [&](SimTime sim) {
+  const auto wall_for = [&](Time sim) {
     return wall_start + duration_cast<steady_clock::duration>(duration<double, std::milli>(
                             static_cast<double>((sim - sim_start).count()) / speedup_));
   };
-  SimTime next = sim_start + tick_;
+  Time next = sim_start + tick_;
   for (;;) {
     {
       std::unique_lock lock(mutex_);
@@ -145,10 +145,10 @@ void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, SimTi
     const auto elapsed = duration<double, std::milli>(steady_clock::now() - wall_start).count();
     const auto ticks =
         static_cast<std::int64_t>(elapsed * speedup_ / static_cast<double>(tick_.count()));
-    const SimTime target = std::max(next, sim_start + tick_ * ticks);
+    const Time target = std::max(next, sim_start + tick_ * ticks);
     clock_.advance_to(target);
     next = target + tick_;
   }
 }
 
-}  // namespace icars::sim
+}  // namespace icars

@@ -1,6 +1,6 @@
-#include "icars/device/simulated_house.h"
+#include "icars/home/sim/simulated_house.h"
 
-namespace icars::device {
+namespace icars::home {
 
 SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     : options_(std::move(options)), clock_(house.start_time) {
@@ -12,7 +12,7 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   comm.token = options_.token;
   comm.logger = options_.logger;
   communicator_ = std::make_unique<planet::Communicator>(comm);
-  manager_ = std::make_unique<DeviceManager>(*communicator_);
+  manager_ = std::make_unique<device::DeviceManager>(*communicator_);
   std::vector<const sim::DeviceSpec*> hosted;
   for (const auto& spec : world_->house().devices) {
     if (options_.devices.empty() || options_.devices.contains(spec.id)) hosted.push_back(&spec);
@@ -28,7 +28,7 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     for (auto& d : make_sim_engines(context)) manager_->add(d);
   }
   if (options_.simulator) manager_->add(make_simulator_device(context));
-  driver_ = std::make_unique<sim::RealTimeDriver>(clock_, options_.speedup);
+  driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
 }
 
 SimulatedHouse::~SimulatedHouse() {
@@ -45,4 +45,4 @@ void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
   manager_->connect(host, port);
 }
 
-}  // namespace icars::device
+}  // namespace icars::home

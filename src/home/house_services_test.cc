@@ -15,11 +15,14 @@
 #include <mutex>
 
 #include "child_process.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/services.h"
 #include "icars/service/service_framework.h"
 
-namespace icars::service {
+namespace icars::home {
 namespace {
 
+using namespace icars::service;
 using namespace std::chrono_literals;
 namespace p = icars::planet;
 
@@ -46,7 +49,7 @@ class HouseServices : public ::testing::Test {
   }
 
   p::Communicator server_;
-  ServiceFramework sf_{server_};
+  ServiceFramework sf_{server_, adaptors(), {}, {composer()}};
   std::uint16_t port_ = 0;
   std::unique_ptr<planet_test::ChildProcess> manager_;
 };
@@ -200,4 +203,4 @@ TEST_F(HouseServices, KilledAndRestartedDeviceManagerBringsItsServicesBack) {
 }
 
 }  // namespace
-}  // namespace icars::service
+}  // namespace icars::home

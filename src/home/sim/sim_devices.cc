@@ -1,4 +1,4 @@
-#include "icars/device/sim_devices.h"
+#include "icars/home/sim/sim_devices.h"
 
 #include <fmt/format.h>
 
@@ -17,10 +17,9 @@
 #include "icars/planet/publisher.h"
 #include "icars/planet/stream.h"
 
-namespace icars::device {
+namespace icars::home {
 
 namespace p = icars::planet;
-using sim::SimTime;
 
 namespace {
 
@@ -28,7 +27,7 @@ constexpr std::string_view kSpeechMagic = "SIMSPEECH1";
 constexpr double kHearingThresholdDb = 25.0;  // default: quieter sounds are not detected
 constexpr double kRecognitionThresholdDb = 35.0;  // quieter speech is not understood
 
-std::int64_t ms(SimTime t) { return static_cast<std::int64_t>(t.count()); }
+std::int64_t ms(Time t) { return static_cast<std::int64_t>(t.count()); }
 
 void check_range(const char* what, std::int32_t v, std::int32_t lo, std::int32_t hi) {
   if (v < lo || v > hi) throw home::OutOfRange(what, v, lo, hi, fmt::format("{} {} is outside {}..{}", what, v, lo, hi));
@@ -462,7 +461,7 @@ class SimClockDevice final : public home::ClockServant {
   explicit SimClockDevice(sim::World& world) : world_(world) {}
   std::int64_t now_ms(const p::Current&) override { return ms(world_.clock().now()); }
   std::string time_of_day(const p::Current&) override {
-    const std::string full = sim::format_time(world_.clock().now());  // "dN HH:MM:SS"
+    const std::string full = format_time(world_.clock().now());  // "dN HH:MM:SS"
     return full.substr(full.find(' ') + 1);
   }
 
@@ -507,11 +506,11 @@ class SimulationControl final : public home::SimulationServant {
   explicit SimulationControl(SimContext context) : world_(context.world) {}
   void say(const std::string& user, const std::string& text, const p::Current&) override {
     if (!world_.house().user(user)) {
-      throw p::RemoteException("home::UnknownUser", "no user '" + user + "' in the house");
+      throw p::RemoteException("icars::home::UnknownUser", "no user '" + user + "' in the house");
     }
     world_.say(user, text);
   }
-  std::string now(const p::Current&) override { return sim::format_time(world_.clock().now()); }
+  std::string now(const p::Current&) override { return format_time(world_.clock().now()); }
   std::int64_t now_ms(const p::Current&) override { return ms(world_.clock().now()); }
 
  private:
@@ -577,8 +576,8 @@ std::optional<SimulatedSpeech::Decoded> SimulatedSpeech::decode(const planet::Bi
 
 // --- Factories -------------------------------------------------------------------------------
 
-std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context) {
-  auto device = std::make_shared<Device>(spec.id, spec.type, spec.room, spec.carrier);
+std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context) {
+  auto device = std::make_shared<device::Device>(spec.id, spec.type, spec.room, spec.carrier);
   const std::string& t = spec.type;
   if (t == "TV") {
     device->add("tv_control", std::make_shared<SimTV>(spec.id, context));
@@ -623,7 +622,7 @@ std::shared_ptr<Device> make_sim_device(const sim::DeviceSpec& spec, SimContext 
   return device;
 }
 
-std::vector<std::shared_ptr<Device>> make_sim_engines(SimContext context) {
+std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context) {
   sim::DeviceSpec speech;
   speech.id = "speech_engine";
   speech.type = "SpeechEngine";
@@ -633,10 +632,10 @@ std::vector<std::shared_ptr<Device>> make_sim_engines(SimContext context) {
   return {make_sim_device(speech, context), make_sim_device(vision, context)};
 }
 
-std::shared_ptr<Device> make_simulator_device(SimContext context) {
-  auto device = std::make_shared<Device>("simulator", "Simulator");
+std::shared_ptr<device::Device> make_simulator_device(SimContext context) {
+  auto device = std::make_shared<device::Device>("simulator", "Simulator");
   device->add("simulation", std::make_shared<SimulationControl>(context));
   return device;
 }
 
-}  // namespace icars::device
+}  // namespace icars::home

@@ -1,6 +1,6 @@
 // The simulation clock: event order, ties, cancellation, events that schedule events, the
 // meaning of advance_to, and the real-time driver's pace.
-#include "icars/sim/clock.h"
+#include "icars/clock/sim_clock.h"
 
 #include <gtest/gtest.h>
 
@@ -10,23 +10,23 @@
 #include <thread>
 #include <vector>
 
-namespace icars::sim {
+namespace icars {
 namespace {
 
 using namespace std::chrono_literals;
 
 TEST(Time, FormatsDayAndTimeOfDay) {
-  EXPECT_EQ(format_time(SimTime{0}), "d0 00:00:00");
+  EXPECT_EQ(format_time(Time{0}), "d0 00:00:00");
   EXPECT_EQ(format_time(at_time(0, 18, 5)), "d0 18:05:00");
   EXPECT_EQ(format_time(at_time(2, 7, 30, 9)), "d2 07:30:09");
   EXPECT_EQ(format_time(at_time(1, 0, 0) + 250ms), "d1 00:00:00.250");
 }
 
 TEST(Time, ParsesTimesOfDayAndRejectsNonsense) {
-  EXPECT_EQ(parse_time_of_day("18:00"), SimTime(18h));
-  EXPECT_EQ(parse_time_of_day("07:05:30"), SimTime(7h + 5min + 30s));
-  EXPECT_EQ(parse_time_of_day("7:05"), SimTime(7h + 5min));
-  EXPECT_EQ(parse_time_of_day("23:59:59"), SimTime(23h + 59min + 59s));
+  EXPECT_EQ(parse_time_of_day("18:00"), Time(18h));
+  EXPECT_EQ(parse_time_of_day("07:05:30"), Time(7h + 5min + 30s));
+  EXPECT_EQ(parse_time_of_day("7:05"), Time(7h + 5min));
+  EXPECT_EQ(parse_time_of_day("23:59:59"), Time(23h + 59min + 59s));
   for (const char* bad : {"25:99", "24:00", "12:60", "12:00:60", "", "7", "07:00pm", "-1:00",
                           "07:5", "a:bc", "07:00:"}) {
     EXPECT_FALSE(parse_time_of_day(bad)) << bad;
@@ -40,7 +40,7 @@ TEST(SimClock, RunsEventsInTimeOrder) {
   clock.schedule_at(10ms, [&] { order.push_back(1); });
   clock.schedule_at(20ms, [&] { order.push_back(2); });
   EXPECT_EQ(clock.pending(), 3u);
-  EXPECT_EQ(clock.next_event_time(), SimTime(10ms));
+  EXPECT_EQ(clock.next_event_time(), Time(10ms));
   clock.advance_to(100ms);
   EXPECT_EQ(order, (std::vector<int>{1, 2, 3}));
   EXPECT_EQ(clock.pending(), 0u);
@@ -58,12 +58,12 @@ TEST(SimClock, EqualTimesRunInSchedulingOrder) {
 
 TEST(SimClock, NowIsTheEventsTimeDuringTheEventAndTheTargetAfterwards) {
   SimClock clock(1000ms);
-  std::vector<SimTime> seen;
+  std::vector<Time> seen;
   clock.schedule_after(250ms, [&] { seen.push_back(clock.now()); });
   clock.schedule_at(1700ms, [&] { seen.push_back(clock.now()); });
   clock.advance_to(2000ms);
-  EXPECT_EQ(seen, (std::vector<SimTime>{1250ms, 1700ms}));
-  EXPECT_EQ(clock.now(), SimTime(2000ms));
+  EXPECT_EQ(seen, (std::vector<Time>{1250ms, 1700ms}));
+  EXPECT_EQ(clock.now(), Time(2000ms));
 }
 
 TEST(SimClock, AdvanceStopsAtTheTargetAndLeavesLaterEventsPending) {
@@ -73,20 +73,20 @@ TEST(SimClock, AdvanceStopsAtTheTargetAndLeavesLaterEventsPending) {
   clock.schedule_at(11ms, [&] { ++ran; });
   clock.advance_to(10ms);  // due at exactly t: runs
   EXPECT_EQ(ran, 1);
-  EXPECT_EQ(clock.now(), SimTime(10ms));
+  EXPECT_EQ(clock.now(), Time(10ms));
   EXPECT_EQ(clock.pending(), 1u);
   clock.advance_to(5ms);  // time never goes back
-  EXPECT_EQ(clock.now(), SimTime(10ms));
+  EXPECT_EQ(clock.now(), Time(10ms));
   EXPECT_EQ(ran, 1);
 }
 
 TEST(SimClock, PastTimesRunAtTheNextAdvance) {
   SimClock clock(100ms);
-  SimTime when{-1};
+  Time when{-1};
   clock.schedule_at(10ms, [&] { when = clock.now(); });
-  EXPECT_EQ(when, SimTime(-1));  // never inside the call
+  EXPECT_EQ(when, Time(-1));  // never inside the call
   clock.advance_by(0ms);
-  EXPECT_EQ(when, SimTime(100ms));
+  EXPECT_EQ(when, Time(100ms));
 }
 
 TEST(SimClock, CancelledEventsNeverRun) {
@@ -148,7 +148,7 @@ TEST(SimClock, AdvancingFromInsideAnEventIsRefused) {
   });
   clock.advance_to(10ms);
   EXPECT_TRUE(threw);
-  EXPECT_EQ(clock.now(), SimTime(10ms));
+  EXPECT_EQ(clock.now(), Time(10ms));
 }
 
 TEST(SimClock, AnExceptionStopsTheAdvanceAtThatEvent) {
@@ -157,7 +157,7 @@ TEST(SimClock, AnExceptionStopsTheAdvanceAtThatEvent) {
   clock.schedule_at(5ms, [] { throw std::runtime_error("boom"); });
   clock.schedule_at(8ms, [&] { later = true; });
   EXPECT_THROW(clock.advance_to(10ms), std::runtime_error);
-  EXPECT_EQ(clock.now(), SimTime(5ms));
+  EXPECT_EQ(clock.now(), Time(5ms));
   EXPECT_FALSE(later);
   clock.advance_to(10ms);
   EXPECT_TRUE(later);
@@ -170,7 +170,7 @@ TEST(SimClock, SchedulingFromManyThreadsKeepsEveryEvent) {
   for (int t = 0; t < 4; ++t) {
     threads.emplace_back([&, t] {
       for (int i = 0; i < 250; ++i) {
-        clock.schedule_at(SimTime(i * 4 + t), [&] { ran.fetch_add(1); });
+        clock.schedule_at(Time(i * 4 + t), [&] { ran.fetch_add(1); });
       }
     });
   }
@@ -215,7 +215,7 @@ TEST(RealTimeDriver, SimulatedTimeTracksWallTimeTimesSpeedup) {
   RealTimeDriver driver(clock, 1000.0, 50ms);
   const auto wall_start = std::chrono::steady_clock::now();
   driver.start();
-  ASSERT_TRUE(wait_for([&] { return clock.now() >= SimTime(200s); }));
+  ASSERT_TRUE(wait_for([&] { return clock.now() >= Time(200s); }));
   driver.stop();
   const auto wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start);
   const auto sim = std::chrono::duration<double>(clock.now());
@@ -231,7 +231,7 @@ TEST(RealTimeDriver, RestartsFromTheCurrentTimeAndStopsOnDestruction) {
     RealTimeDriver driver(clock, 1000.0);
     driver.start();
     driver.start();  // no-op
-    ASSERT_TRUE(wait_for([&] { return clock.now() >= SimTime(2s); }));
+    ASSERT_TRUE(wait_for([&] { return clock.now() >= Time(2s); }));
     driver.stop();
     driver.stop();         // no-op
     clock.advance_by(1h);  // the clock is ours again
@@ -248,8 +248,8 @@ TEST(RealTimeDriver, RejectsNonsenseSettings) {
   SimClock clock;
   EXPECT_THROW(RealTimeDriver(clock, 0.0), std::invalid_argument);
   EXPECT_THROW(RealTimeDriver(clock, -2.0), std::invalid_argument);
-  EXPECT_THROW(RealTimeDriver(clock, 10.0, SimTime{0}), std::invalid_argument);
+  EXPECT_THROW(RealTimeDriver(clock, 10.0, Time{0}), std::invalid_argument);
 }
 
 }  // namespace
-}  // namespace icars::sim
+}  // namespace icars

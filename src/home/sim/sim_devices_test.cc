@@ -21,13 +21,13 @@
 #include "child_process.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
-#include "icars/device/sim_devices.h"
-#include "icars/device/sim_state_file.h"
-#include "icars/device/simulated_house.h"
+#include "icars/home/sim/sim_devices.h"
+#include "icars/home/sim/sim_state_file.h"
+#include "icars/home/sim/simulated_house.h"
 #include "icars/planet/stream.h"
 #include "icars/sim/house.h"
 
-namespace icars::device {
+namespace icars::home {
 namespace {
 
 using namespace std::chrono_literals;
@@ -76,10 +76,10 @@ class SimDevices : public ::testing::Test {
 
   std::mutex effects_mutex_;
   std::vector<DeviceEffect> effects_;  // what the actuators reported, in order
-  sim::SimClock clock_{sim::at_time(0, 18, 0)};
+  SimClock clock_{at_time(0, 18, 0)};
   sim::World world_{house(), clock_};
   p::Communicator devices_;
-  DeviceManager manager_{devices_};
+  device::DeviceManager manager_{devices_};
   p::Communicator client_;
   std::shared_ptr<p::Peer> peer_;
 };
@@ -116,7 +116,7 @@ TEST_F(SimDevices, ActuatorsKeepTheirStateAndRefuseOutOfRangeCommands) {
 
 // An effect as "time device: what value", for comparing lists.
 std::string describe(const DeviceEffect& e) {
-  return sim::format_time(e.time) + " " + e.device + ": " + e.what +
+  return format_time(e.time) + " " + e.device + ": " + e.what +
          (e.value.empty() ? "" : " " + e.value);
 }
 
@@ -177,14 +177,14 @@ TEST(SimDeviceEffects, NobodyListeningIsFineAndTheSimulatedHousePassesTheObserve
     EXPECT_EQ(effects[0].device, "bedroom_light");
     EXPECT_EQ(effects[0].what, "power");
     EXPECT_EQ(effects[0].value, "on");
-    EXPECT_EQ(effects[0].time, sim::at_time(0, 18, 0));  // the house's start, clock not started
+    EXPECT_EQ(effects[0].time, at_time(0, 18, 0));  // the house's start, clock not started
   }
 
   // Without an observer the actuators work as before.
-  sim::SimClock clock;
+  SimClock clock;
   sim::World world(sim::load_house(ICARS_PAPER_HOUSE), clock);
   p::Communicator devices;
-  DeviceManager manager(devices);
+  device::DeviceManager manager(devices);
   sim::DeviceSpec tv = *world.house().device("tv");
   manager.add(make_sim_device(tv, SimContext{world, devices}));
   const auto tv_peer = client.connect("127.0.0.1", devices.listen("127.0.0.1", 0));
@@ -197,10 +197,10 @@ TEST(SimDeviceEffects, NobodyListeningIsFineAndTheSimulatedHousePassesTheObserve
 TEST_F(SimDevices, TheSimulationTellsItsTimeInMilliseconds) {
   auto simulation = capability<home::SimulationPrx>("simulator", "simulation");
   EXPECT_EQ(simulation.now_ms(), clock_.now().count());
-  EXPECT_EQ(simulation.now_ms(), sim::at_time(0, 18, 0).count());
+  EXPECT_EQ(simulation.now_ms(), at_time(0, 18, 0).count());
   clock_.advance_by(90min + 250ms);
   EXPECT_EQ(simulation.now_ms(), clock_.now().count());
-  EXPECT_EQ(simulation.now_ms(), sim::at_time(0, 19, 30).count() + 250);
+  EXPECT_EQ(simulation.now_ms(), at_time(0, 19, 30).count() + 250);
   EXPECT_EQ(simulation.now(), "d0 19:30:00.250");
 }
 
@@ -208,7 +208,7 @@ TEST_F(SimDevices, TheClockTellsSimulatedTime) {
   auto clock = capability<home::ClockPrx>("clock", "clock");
   EXPECT_EQ(clock.time_of_day(), "18:00:00");
   clock_.advance_by(90min);
-  EXPECT_EQ(clock.now_ms(), sim::at_time(0, 19, 30).count());
+  EXPECT_EQ(clock.now_ms(), at_time(0, 19, 30).count());
   EXPECT_EQ(clock.time_of_day(), "19:30:00");
 }
 
@@ -235,7 +235,7 @@ TEST_F(SimDevices, SensorsPublishWhatTheUserDoes) {
   EXPECT_FALSE(sensor.motion());
   EXPECT_FALSE(bed.occupied());
 
-  clock_.advance_to(sim::at_time(0, 23, 0));  // 22:00 to the bedroom, 22:30 in bed
+  clock_.advance_to(at_time(0, 23, 0));  // 22:00 to the bedroom, 22:30 in bed
   EXPECT_TRUE(sensor.motion());
   EXPECT_TRUE(bed.occupied());
   ASSERT_TRUE(planet_test::wait_until([&] {
@@ -245,7 +245,7 @@ TEST_F(SimDevices, SensorsPublishWhatTheUserDoes) {
   std::lock_guard lock(mutex);
   EXPECT_TRUE(motion.front().motion);
   EXPECT_EQ(motion.front().room, "bedroom");
-  EXPECT_GE(motion.front().time_ms, sim::at_time(0, 21, 59).count());
+  EXPECT_GE(motion.front().time_ms, at_time(0, 21, 59).count());
   EXPECT_TRUE(occupancy.back().occupied);
   EXPECT_EQ(occupancy.back().furniture, "bed");
 }
@@ -371,7 +371,7 @@ TEST_F(SimDevices, TheWheelsTurnInPlaceAndStopAMotion) {
 // `now`, every house device hosted with the state file `file`, called over loopback.
 class KeptHouse {
  public:
-  KeptHouse(const std::filesystem::path& file, sim::SimTime now,
+  KeptHouse(const std::filesystem::path& file, Time now,
             std::chrono::milliseconds min_interval = 100ms)
       : clock_(now) {
     std::vector<std::string> ids;
@@ -387,16 +387,16 @@ class KeptHouse {
   Prx capability(const std::string& device, const std::string& name) {
     return Prx(client_, peer_, "/devices/" + device + "/" + name);
   }
-  sim::SimClock& clock() { return clock_; }
+  SimClock& clock() { return clock_; }
   sim::World& world() { return world_; }
   SimStateFile& state() { return *state_; }
 
  private:
-  sim::SimClock clock_;
+  SimClock clock_;
   sim::World world_{sim::load_house(ICARS_PAPER_HOUSE), clock_};
   std::unique_ptr<SimStateFile> state_;
   p::Communicator devices_;
-  DeviceManager manager_{devices_};
+  device::DeviceManager manager_{devices_};
   p::Communicator client_;
   std::shared_ptr<p::Peer> peer_;
 };
@@ -424,7 +424,7 @@ class SimStateFileTest : public ::testing::Test {
 
   std::filesystem::path dir_;
   std::filesystem::path file_;
-  const sim::SimTime t18_ = sim::at_time(0, 18, 0);
+  const Time t18_ = at_time(0, 18, 0);
 };
 
 TEST_F(SimStateFileTest, EveryAcknowledgedCommandIsOnDiskAndARestartStartsFromIt) {
@@ -493,7 +493,7 @@ TEST_F(SimStateFileTest, ARobotThatArrivedComesBackWhereItStopped) {
 
 TEST_F(SimStateFileTest, ADrivingRobotDrivesOnWithTheClockAndArrivesWhereItWould) {
   // The reference: the same command in a house that is never restarted.
-  sim::SimClock clock(t18_);
+  SimClock clock(t18_);
   sim::World reference(sim::load_house(ICARS_PAPER_HOUSE), clock);
   ASSERT_TRUE(reference.move_robot("robot1", *reference.house().locate("bedroom_window")));
 
@@ -632,7 +632,7 @@ TEST_F(SimStateFileTest, AReaderNeverSeesATornFile) {
 }
 
 TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {
-  sim::SimClock clock;
+  SimClock clock;
   sim::World world(sim::load_house(ICARS_PAPER_HOUSE), clock);
   p::Communicator communicator;
   sim::DeviceSpec spec;
@@ -657,4 +657,4 @@ TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {
 }
 
 }  // namespace
-}  // namespace icars::device
+}  // namespace icars::home

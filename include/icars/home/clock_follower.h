@@ -7,16 +7,16 @@
 #include <chrono>
 #include <thread>
 
+#include "icars/clock/sim_clock.h"
 #include "icars/service/service_container.h"
-#include "icars/sim/clock.h"
 
-namespace icars::server {
+namespace icars::home {
 
 class ClockFollower {
  public:
   // Starts polling every `every` (a call is tens of microseconds; at 1500x, 5 ms of wall time
   // are 7.5 s simulated). `clock` and `services` must outlive the follower.
-  ClockFollower(sim::SimClock& clock, service::ServiceContainer& services,
+  ClockFollower(SimClock& clock, service::ServiceContainer& services,
                 std::chrono::milliseconds every = std::chrono::milliseconds(5));
   ~ClockFollower();  // stops polling
   ClockFollower(const ClockFollower&) = delete;
@@ -28,7 +28,7 @@ class ClockFollower {
  private:
   void run();
 
-  sim::SimClock& clock_;
+  SimClock& clock_;
   service::ServiceContainer& services_;
   const std::chrono::milliseconds every_;
   std::atomic<bool> stop_{false};
@@ -36,4 +36,4 @@ class ClockFollower {
   std::thread thread_;
 };
 
-}  // namespace icars::server
+}  // namespace icars::home

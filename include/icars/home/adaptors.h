@@ -1,0 +1,126 @@
+// The adaptor services of the home's capabilities (idl/home.idl, ICARS paper 5.1): the Service
+// objects SF makes for a TV, a light, a speaker, a microphone, the robot's wheels and camera,
+// the sensors of the house, and the simulation's clock. adaptors() puts them all in an
+// AdaptorFactory for a ServerOptions or a ServiceFramework.
+#pragma once
+
+#include <string_view>
+
+#include "home.planet.h"
+#include "icars/service/adaptor.h"
+#include "icars/service/device_registry.h"
+
+namespace icars::home {
+
+// The adaptors of every capability in idl/home.idl, by interface id.
+service::AdaptorFactory adaptors();
+
+// The stateful house adaptors remember the TV's, light's and speaker's state after every
+// acknowledged command and restore it when the device comes back (Adaptor::restore).
+class TVControlService final : public service::AdaptorOf<home::TVControlPrx> {
+ public:
+  TVControlService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("TVControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) override;
+  void apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
+};
+
+class LightService final : public service::AdaptorOf<home::LightPrx> {
+ public:
+  LightService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("LightControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) override;
+  void apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
+};
+
+class SpeakerService final : public service::AdaptorOf<home::SpeakerPrx> {
+ public:
+  SpeakerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("AudioControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  // What it plays and how loud; what it last said is not state to restore.
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) override;
+  void apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
+};
+
+class SpeechRecognizerService final : public service::AdaptorOf<home::SpeechRecognizerPrx> {
+ public:
+  SpeechRecognizerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("SpeechRecognizer", d, c) {}
+};
+
+class CameraService final : public service::AdaptorOf<home::CameraPrx> {
+ public:
+  CameraService(const df::DeviceInfo& d, const df::CapabilityInfo& c) : AdaptorOf("Camera", d, c) {}
+};
+
+class FaceRecognizerService final : public service::AdaptorOf<home::FaceRecognizerPrx> {
+ public:
+  FaceRecognizerService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("FaceRecognizer", d, c) {}
+};
+
+class ClockService final : public service::AdaptorOf<home::ClockPrx> {
+ public:
+  ClockService(const df::DeviceInfo& d, const df::CapabilityInfo& c) : AdaptorOf("Clock", d, c) {}
+};
+
+class SimulationService final : public service::AdaptorOf<home::SimulationPrx> {
+ public:
+  SimulationService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf("Simulation", d, c) {}
+};
+
+class SoundSensor final : public service::SensorAdaptor<home::MicrophonePrx, home::SoundListener, home::SoundEvent,
+                                                home::SoundListener::on_sound> {
+ public:
+  SoundSensor(const df::DeviceInfo& d, const df::CapabilityInfo& c) : SensorAdaptor("SoundSensor", d, c) {}
+};
+
+// The robot's wheels as a navigation service: go_to/go_to_waypoint/stop and position events.
+class NavigationService final : public service::SensorAdaptor<home::WheelsPrx, home::PositionListener, home::PositionEvent,
+                                                      home::PositionListener::on_position> {
+ public:
+  NavigationService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : SensorAdaptor("Navigation", d, c) {}
+};
+
+class MotionSensorService final : public service::SensorAdaptor<home::MotionSensorPrx, home::MotionListener,
+                                                        home::MotionEvent, home::MotionListener::on_motion> {
+ public:
+  MotionSensorService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : SensorAdaptor("MotionSensor", d, c) {}
+
+ protected:
+  void reread(const home::MotionSensorPrx& sensor) override;
+  bool changed_from(const home::MotionEvent& last, const home::MotionEvent& reading) const override {
+    return last.motion != reading.motion;
+  }
+};
+
+class OccupancyService final
+    : public service::SensorAdaptor<home::OccupancySensorPrx, home::OccupancyListener, home::OccupancyEvent,
+                           home::OccupancyListener::on_occupancy> {
+ public:
+  OccupancyService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : SensorAdaptor("OccupancySensor", d, c) {}
+
+ protected:
+  void reread(const home::OccupancySensorPrx& sensor) override;
+  bool changed_from(const home::OccupancyEvent& last, const home::OccupancyEvent& reading) const override {
+    return last.occupied != reading.occupied;
+  }
+};
+
+}  // namespace icars::home
