@@ -307,12 +307,6 @@ std::size_t open_descriptors() {
 class SoftDescriptorLimit {
  public:
   explicit SoftDescriptorLimit(rlim_t soft) {
-    // UBSan checks the dynamic type of the error category behind every error_code::message()
-    // (the server logs accept failures with it), and on the first check of a type it probes
-    // memory through a pipe: with every descriptor taken that probe fails and is reported as an
-    // invalid vptr. One message now, with descriptors to spare, puts the type in its cache.
-    (void)std::error_code(EMFILE, std::system_category()).message();
-    (void)std::make_error_code(std::errc::too_many_files_open).message();
     ::getrlimit(RLIMIT_NOFILE, &saved_);
     rlimit lowered = saved_;
     lowered.rlim_cur = soft;
