@@ -9,7 +9,6 @@
 #include <asio/post.hpp>
 #include <asio/ssl/context.hpp>
 #include <cerrno>
-#include <cstring>
 #include <future>
 #include <limits>
 
@@ -77,26 +76,10 @@ constexpr std::chrono::milliseconds kAcceptBackoffMax{1000};
 
 // Failures of accept() that say the process (or the system) is out of a resource rather than
 // that one pending connection went bad.
-//
-// This and describe_accept_error() make no member call on the error's category when it is the
-// system's (they compare its address and describe errno with strerror_r): they run while the
-// process is out of descriptors, and the sanitized build checks the dynamic type of an object
-// it calls by probing memory through a pipe, which cannot be opened then; the check then fails
-// and reports a valid category as an invalid vptr.
-bool is_system_error(const std::error_code& ec) {
-  return &ec.category() == &asio::error::get_system_category();
-}
-
 bool out_of_resources(const std::error_code& ec) {
-  if (!is_system_error(ec)) return false;
+  if (ec.category() != asio::error::get_system_category()) return false;
   const int e = ec.value();
   return e == EMFILE || e == ENFILE || e == ENOBUFS || e == ENOMEM;
-}
-
-std::string describe_accept_error(const std::error_code& ec) {
-  if (!is_system_error(ec)) return ec.message();
-  char buffer[256];
-  return ::strerror_r(ec.value(), buffer, sizeof buffer);  // GNU: the message, maybe not in buffer
 }
 
 // CONNECT (PUN and token) and CONNECT_ACK must each fit one control frame.
@@ -473,7 +456,7 @@ void ConnectionManager::on_accept_failed(const std::shared_ptr<Acceptor>& accept
   const auto now = std::chrono::steady_clock::now();
   // One line a second at most, however fast accept fails.
   if (now - acceptor->last_report >= std::chrono::seconds(1)) {
-    log_->warn("accept failed: {} ({} failure{} since the last report){}", describe_accept_error(ec),
+    log_->warn("accept failed: {} ({} failure{} since the last report){}", ec.message(),
                acceptor->failures_unreported, acceptor->failures_unreported == 1 ? "" : "s",
                out_of_resources(ec) ? "; backing off while the process is out of descriptors or "
                                       "memory (see ulimit -n)"
@@ -495,8 +478,7 @@ void ConnectionManager::on_accept_failed(const std::shared_ptr<Acceptor>& accept
 void ConnectionManager::accept_next(const std::shared_ptr<Acceptor>& acceptor) {
   acceptor->socket.async_accept([this, acceptor](const std::error_code& ec,
                                                  asio::ip::tcp::socket socket) {
-    // (Compared by value, not `ec == operation_aborted`: see is_system_error().)
-    if ((is_system_error(ec) && ec.value() == asio::error::operation_aborted) || !acceptor->socket.is_open()) return;
+    if (ec == asio::error::operation_aborted || !acceptor->socket.is_open()) return;
     if (ec) {
       on_accept_failed(acceptor, ec);
       if (out_of_resources(ec)) return;  // accept_next runs when the backoff timer fires

@@ -434,6 +434,13 @@ TEST(DescriptorLimit, FloodBeyondTheDescriptorLimitPausesAcceptingAndTheServerRe
 // Descriptors used up by something else: accept() fails with EMFILE for as long as that lasts.
 // Before the fix the server retried at once, for ever (5 million log lines in 12 s at 75% CPU).
 TEST(DescriptorLimit, AcceptBacksOffWhileDescriptorsAreExhaustedAndRecovers) {
+#if defined(__SANITIZE_ADDRESS__)  // the sanitizer build, which also has UBSan's vptr check
+  // UBSan checks an object's dynamic type before a member call on it, and when the type is not
+  // in its small cache it probes memory through a pipe. With every descriptor taken the pipe
+  // cannot be opened and a valid std::error_category (compared in asio's accept path) is
+  // reported as an invalid vptr, failing the run whenever the cache misses.
+  GTEST_SKIP() << "needs a build without UBSan's vptr check: it takes every descriptor";
+#endif
   CommunicatorOptions so;
   auto sink = std::make_shared<CaptureSink>();
   so.logger = capturing_logger(sink);
