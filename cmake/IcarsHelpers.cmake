@@ -44,3 +44,17 @@ function(icars_add_library layer)
     $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}/include>
     $<INSTALL_INTERFACE:include>)
 endfunction()
+
+# icars_install_generated_idl(<target> <idl stems...>)
+# Installs the headers planet_idl_generate() made for <target> from <stem>.idl into
+# include/icars/planet_idl, where the installed <target> finds them.
+function(icars_install_generated_idl target)
+  foreach(stem IN LISTS ARGN)
+    install(FILES ${CMAKE_CURRENT_BINARY_DIR}/planet_idl/${target}/${stem}.planet.h
+      DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/icars/planet_idl)
+  endforeach()
+  target_include_directories(${target} PUBLIC
+    $<INSTALL_INTERFACE:${CMAKE_INSTALL_INCLUDEDIR}/icars/planet_idl>)
+endfunction()
+
+include(${CMAKE_CURRENT_LIST_DIR}/IcarsPlugin.cmake)

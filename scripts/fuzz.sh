@@ -3,6 +3,7 @@
 # libraries) and runs each for a bounded time, two at a time, on a copy of the seed corpus.
 #
 #   scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]     (default: 60 s, every target)
+#   ICARS_FUZZ_BUILD_ONLY=1 scripts/fuzz.sh               (build them, run nothing)
 #
 # The copy lives in $ICARS_FUZZ_BUILD_DIR (default build/fuzz) and grows there from run to run;
 # the repository's corpus is never touched. Exits non-zero when a fuzzer finds a crash, a leak,
@@ -13,13 +14,14 @@ cd "$(dirname "$0")/.."
 seconds="${1:-60}"
 shift || true
 build="${ICARS_FUZZ_BUILD_DIR:-build/fuzz}"
-all_targets=(frame_decoder_fuzz payload_fuzz idl_parser_fuzz policy_parser_fuzz coros_decoder_fuzz)
+all_targets=(frame_decoder_fuzz payload_fuzz idl_parser_fuzz policy_parser_fuzz coros_decoder_fuzz discovery_fuzz)
 targets=("$@")
 [ ${#targets[@]} -gt 0 ] || targets=("${all_targets[@]}")
 
-# Longest input per target: a few frames; one RMI message; an IDL or policy file; one datagram.
+# Longest input per target: a few frames; one RMI message; an IDL or policy file; one datagram;
+# one discovery config (beyond 64 KiB it is refused unread).
 declare -A max_len=([frame_decoder_fuzz]=40000 [payload_fuzz]=8192 [idl_parser_fuzz]=8192
-                    [policy_parser_fuzz]=16384 [coros_decoder_fuzz]=4096)
+                    [policy_parser_fuzz]=16384 [coros_decoder_fuzz]=4096 [discovery_fuzz]=8192)
 
 scripts/install-deps.sh
 # Optimised with line tables (enough for the sanitizers' stack traces); assertions stay on (no
@@ -28,6 +30,8 @@ cmake -S . -B "$build" -G Ninja -DCMAKE_CXX_COMPILER=clang++ -DCMAKE_BUILD_TYPE=
   "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O1 -gline-tables-only" -DICARS_BUILD_FUZZERS=ON -DICARS_BUILD_TESTS=OFF \
   -DICARS_BUILD_BENCHMARKS=OFF -DICARS_BUILD_EXAMPLES=OFF -DICARS_WITH_ROS=OFF >/dev/null
 cmake --build "$build" -j "$(nproc)" --target "${targets[@]}"
+# ICARS_FUZZ_BUILD_ONLY=1: build the fuzzers and stop (to build a tree ahead of a run).
+[ "${ICARS_FUZZ_BUILD_ONLY:-0}" = 0 ] || exit 0
 
 export ASAN_OPTIONS="${ASAN_OPTIONS:-detect_leaks=1}"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}"

@@ -9,8 +9,14 @@ packages=(
   libasio-dev libssl-dev openssl
   libspdlog-dev libfmt-dev libcli11-dev libpugixml-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # xmllint, for the test that every shipped XML file is well-formed (scripts/check-xml.sh)
+  libxml2-utils
+  # jsonschema, for scripts/check-trace.py and the test that every trace record is valid
+  python3-jsonschema
   # clang with libFuzzer and the sanitizer runtimes for scripts/fuzz.sh
   clang libclang-rt-14-dev
+  # MQTT for the bridges to real homes: the client library, and the broker and tools its tests start
+  libmosquitto-dev mosquitto mosquitto-clients
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
   libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
 )

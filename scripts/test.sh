@@ -9,19 +9,30 @@ scripts/install-deps.sh
 jobs=$(nproc)
 # ccache keys on paths relative to the checkout, so a fresh clone reuses what an earlier one built.
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
+# Each phase's start, in minutes since the run began (docs/architecture.md, first section).
+phase() { echo "test.sh: [$(printf '%4d' $((SECONDS / 60))) min] $*"; }
 
 # The generic layers first, built and tested without the home domain (ICARS_WITH_HOME=OFF);
 # then the same tree with it adds only the home and what stands on it, whose tests carry the
 # label `home`: every object is compiled once and every test runs once.
+phase "generic layers: build"
 cmake --preset asan -DICARS_WITH_HOME=OFF >/dev/null
 cmake --build build/asan -j "$jobs"
+phase "generic layers: test"
 ctest --preset asan -j "$jobs"
+phase "home: build"
 cmake --preset asan -DICARS_WITH_HOME=ON >/dev/null
 cmake --build build/asan -j "$jobs"
+
+phase "home: test"
 ctest --preset asan -j "$jobs" -L home
+
+phase "fuzz"
 scripts/fuzz.sh "${ICARS_FUZZ_SECONDS:-60}"
 
-# The tests were compiled (with -Werror) and run above; the release tree builds the rest.
+# The tests were compiled (with -Werror) and run above; the release tree builds the rest and
+# runs the benchmarks briefly.
+phase "release: build and benchmark smoke runs"
 cmake --preset release >/dev/null
 cmake --build build/release -j "$jobs"
 build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
@@ -31,4 +42,5 @@ results=$(mktemp -d)
 build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
   --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; exit 1; }
 rm -rf "$results"
+phase "done"
 echo "test.sh: all tests passed"

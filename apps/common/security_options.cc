@@ -16,7 +16,10 @@ void add_tls_options(CLI::App& app, planet::TlsOptions& tls, Side side) {
       {"auto", planet::TlsMode::automatic}, {"on", planet::TlsMode::on}, {"off", planet::TlsMode::off}};
   app.add_option("--tls", tls.mode,
                  "TLS: auto (non-loopback links only), on (every link) or off (trusted network)")
-      ->transform(CLI::CheckedTransformer(modes, CLI::ignore_case));
+      // The modes by name: CLI11 would print the enum's values (bytes) as characters.
+      ->transform(CLI::CheckedTransformer(modes, CLI::ignore_case).description(""))
+      ->type_name("{auto,on,off}")
+      ->default_str("auto");
   app.add_option("--tls-ca", tls.ca_file, "PEM file of the CA that peers' certificates chain to")
       ->check(CLI::ExistingFile);
   app.add_option("--tls-cert", tls.certificate_file, "PEM file of this endpoint's certificate")

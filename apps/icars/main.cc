@@ -1,24 +1,38 @@
 // icars: the mediating server of a smart home (ICARS paper 3, Figs. 14 and 16b).
 //
-//   icars run POLICY --world HOUSE [--speed N] [--until HH:MM] [--days N] [--trace FILE] [--plot FILE.svg]
+//   icars run POLICY --world HOUSE [--speed N|max] [--until HH:MM] [--days N] [--trace FILE] [--plot FILE.svg]
 //       runs a collaboration policy on a house: the Service Framework, the behaviors and the
 //       Coordinator, with the house's device managers embedded in the same process (simulated
-//       devices over loopback PLANET) or, with --external, connecting from elsewhere
-//       (icars-device-manager). Prints a timeline and a summary.
-//   icars validate POLICY...
-//       checks policies without running them; exit code 1 if any has errors.
+//       devices over loopback PLANET, the clock in lock-step with the mediator unless
+//       --free-running) or, with --external, connecting from elsewhere (icars-device-manager).
+//       Prints a timeline and a summary.
+//   icars validate POLICY... [--world HOUSE]
+//       checks policies without running them (with a house: against its rooms, waypoints,
+//       furniture, devices, users and robots, as `icars run` does); exit code 1 if any has
+//       errors, 2 for a house or plugin that cannot be used.
 //   icars behaviors
 //       lists the behavior types a policy can use, with their parameters.
+//   --plugin PATH.so (run, validate, behaviors; repeatable)
+//       loads a plugin that adds behavior, adaptor and composer types (icars/server/plugin.h);
+//       a plugin that cannot be used stops the command with exit code 2 and the reason.
 //   icars token NAME [--may-call PATTERN...] [--devices PATTERN...] [--max-devices N]
 //       makes a token for a device manager or agent: prints the token (for its --token-file) and
 //       the entry to add to the server's --access file (docs/security.md).
 #include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <optional>
 
 #include "icars/control/collaboration.h"
-#include "icars/home/behaviors.h"
+#include "icars/control/policy_check.h"
+#include "icars/home/sim/house_vocabulary.h"
+#include "icars/home/sim/sim_devices.h"
+#include "icars/server/plugin.h"
 #include "mediator.h"
+#include "registries.h"
 #include "security_options.h"
 
 namespace b = icars::behavior;
@@ -27,14 +41,39 @@ namespace home = icars::home;
 
 namespace {
 
-int validate(const std::vector<std::string>& policies, const std::string& policy_dir) {
-  const auto registry = home::behavior_registry();
+using icars::app::Registries;
+
+int validate(const std::vector<std::string>& policies, const std::string& policy_dir, const std::string& world,
+             const std::vector<std::string>& plugins) {
+  std::optional<Registries> loaded;
+  try {
+    loaded.emplace(plugins);
+  } catch (const icars::server::PluginError& e) {
+    std::fprintf(stderr, "icars validate: %s\n", e.what());
+    return 2;
+  }
+  const auto& registry = loaded->behaviors;
+  // Without a house, the events are checked and no names are.
+  icars::behavior::Vocabulary vocabulary;
+  if (!world.empty()) {
+    try {
+      const auto house = icars::sim::load_house(world);
+      loaded->sim_devices.check(house);
+      vocabulary = home::house_vocabulary(house);
+    } catch (const icars::sim::HouseError& e) {
+      std::fprintf(stderr, "%s\n", e.what());
+      return 2;
+    }
+  }
   const c::PolicyRepository repository(policy_dir);
   int failed = 0;
   for (const auto& name : policies) {
     const auto path = repository.path_of(name);
     try {
       const auto parsed = c::parse_policy_file(path, registry);
+      if (auto problems = c::check_policy(parsed.policy, registry, vocabulary); !problems.empty()) {
+        throw c::PolicyError(std::move(problems));
+      }
       for (const auto& w : parsed.warnings) std::fprintf(stderr, "%s\n", w.to_string().c_str());
       std::size_t states = 0;
       std::function<void(const c::StateSpec&)> count = [&](const c::StateSpec& s) {
@@ -44,8 +83,9 @@ int validate(const std::vector<std::string>& policies, const std::string& policy
         }
       };
       count(parsed.policy.root);
-      std::printf("%s: ok: policy %s, %zu tasks, %zu states, %zu warnings\n", path.c_str(),
-                  parsed.policy.name.c_str(), parsed.policy.tasks.size(), states, parsed.warnings.size());
+      std::printf("%s: ok: policy %s, %zu tasks, %zu states, %zu warning%s\n", path.c_str(),
+                  parsed.policy.name.c_str(), parsed.policy.tasks.size(), states, parsed.warnings.size(),
+                  parsed.warnings.size() == 1 ? "" : "s");
     } catch (const c::PolicyError& e) {
       for (const auto& d : e.diagnostics()) std::fprintf(stderr, "%s\n", d.to_string().c_str());
       std::fprintf(stderr, "%s: %zu error%s\n", path.c_str(), e.diagnostics().size(),
@@ -56,17 +96,38 @@ int validate(const std::vector<std::string>& policies, const std::string& policy
   return failed == 0 ? 0 : 1;
 }
 
-void list_behaviors() {
-  const auto registry = home::behavior_registry();
+int list_behaviors(const std::vector<std::string>& plugins) {
+  std::optional<Registries> loaded;
+  try {
+    loaded.emplace(plugins);
+  } catch (const icars::server::PluginError& e) {
+    std::fprintf(stderr, "icars behaviors: %s\n", e.what());
+    return 2;
+  }
+  const auto& registry = loaded->behaviors;
+  const auto from = [&](const std::string& type) -> std::string {
+    const auto* plugin = loaded->plugin_of_behavior(type);
+    return plugin != nullptr ? " (plugin " + plugin->path + ")" : "";
+  };
   for (const auto& type : registry.types()) {
     const auto* entry = registry.find(type);
-    std::printf("%s: %s\n", type.c_str(), entry->doc.c_str());
+    std::printf("%s: %s%s\n", type.c_str(), entry->doc.c_str(), from(type).c_str());
     for (const auto& p : entry->params) {
       std::printf("    %-16s %-12s %s%s\n", p.name.c_str(), std::string(b::to_string(p.type)).c_str(),
                   p.doc.c_str(),
                   p.default_value ? (" [default: \"" + *p.default_value + "\"]").c_str() : " [required]");
     }
   }
+  for (const auto& plugin : loaded->plugins) {
+    std::printf("plugin %s: %zu behavior types, adaptors for %zu interfaces%s%s, %zu composers\n",
+                plugin.path.c_str(), plugin.behaviors.size(), plugin.interfaces.size(),
+                plugin.interfaces.empty() ? "" : ": ", fmt::format("{}", fmt::join(plugin.interfaces, ", ")).c_str(),
+                plugin.composers);
+    for (const auto& [kind, names] : plugin.extended) {
+      std::printf("plugin %s: %s %s\n", plugin.path.c_str(), kind.c_str(), fmt::format("{}", fmt::join(names, ", ")).c_str());
+    }
+  }
+  return 0;
 }
 
 }  // namespace
@@ -79,19 +140,44 @@ int main(int argc, char** argv) {
   auto* run_cmd = app.add_subcommand("run", "run a policy on a house");
   run_cmd->add_option("policy", run.policy, "policy file, or a name in --policies")->required();
   run_cmd->add_option("--world", run.world, "house file (docs/house.md)")->required();
-  run_cmd->add_option("--speed", run.speed, "simulated seconds per wall-clock second")
-      ->check(CLI::Range(1.0, 100000.0));
-  run_cmd->add_option("--until", run.until, "stop at this simulated time of day (HH:MM)");
+  run_cmd
+      ->add_option_function<std::string>(
+          "--speed",
+          [&run](const std::string& text) {
+            if (text == "max") {
+              run.speed = 0;
+              return;
+            }
+            std::size_t used = 0;
+            double value = 0;
+            try {
+              value = std::stod(text, &used);
+            } catch (const std::exception&) {
+              used = 0;
+            }
+            if (used != text.size() || !(value >= 1.0 && value <= 100000.0)) {
+              throw CLI::ValidationError("--speed", text + " is neither a number in [1, 100000] nor 'max'");
+            }
+            run.speed = value;
+          },
+          "simulated seconds per wall-clock second, or 'max': as fast as the machine goes "
+          "(lock-step only)")
+      ->default_str("1500");
+  run_cmd->add_flag("--free-running", run.free_running,
+                    "run the embedded house's clock with the wall clock instead of in lock-step with the "
+                    "mediator: reactions then lag by the time they take, times --speed");
+  run_cmd->add_option("--until", run.until, "stop at this simulated time of day (HH:MM)")->capture_default_str();
   run_cmd->add_option("--days", run.days,
                       "run this many simulated days: stop at the N-th --until after the house's start "
                       "(the users' daily schedule repeats)")
-      ->check(CLI::Range(1, 3650));
+      ->check(CLI::Range(1, 3650))
+      ->capture_default_str();
   run_cmd->add_option("--trace", run.trace_file, "write a JSON-lines trace to this file");
   run_cmd->add_option("--plot", run.plot_file, "draw the house and the run to this SVG file");
-  run_cmd->add_option("--listen", run.listen, "where device managers connect, host:port");
+  run_cmd->add_option("--listen", run.listen, "where device managers connect, host:port")->capture_default_str();
   run_cmd->add_flag("--external", run.external, "device managers run as separate processes");
   run_cmd->add_flag("--quiet", run.quiet, "print only the summary");
-  run_cmd->add_option("--policies", run.policy_dir, "the policy repository directory");
+  run_cmd->add_option("--policies", run.policy_dir, "the policy repository directory")->capture_default_str();
   icars::app::add_tls_options(*run_cmd, run.tls, icars::app::Side::server);
   run_cmd->add_option("--access", run.access_file,
                       "access file: who may connect and what each may call (docs/security.md)")
@@ -101,9 +187,22 @@ int main(int argc, char** argv) {
   std::string policy_dir = "examples/smart_home";
   auto* validate_cmd = app.add_subcommand("validate", "check policies without running them");
   validate_cmd->add_option("policy", to_validate, "policy files or names")->required();
-  validate_cmd->add_option("--policies", policy_dir, "the policy repository directory");
+  validate_cmd->add_option("--policies", policy_dir, "the policy repository directory")->capture_default_str();
+  std::string validate_world;
+  validate_cmd->add_option("--world", validate_world,
+                           "also check the policies against this house: the rooms, waypoints, furniture, "
+                           "devices, users and robots they name");
 
   auto* behaviors_cmd = app.add_subcommand("behaviors", "list the behavior types policies can use");
+
+  // Plugins: the same option on the three commands that need the behavior types.
+  std::vector<std::string> plugins;
+  for (auto* cmd : {run_cmd, validate_cmd, behaviors_cmd}) {
+    // One file per --plugin, so that `--plugin a.so policy.xml` leaves the policy alone.
+    cmd->add_option("--plugin", cmd == run_cmd ? run.plugins : plugins,
+                    "a plugin (shared library) adding behavior, adaptor and composer types")
+        ->allow_extra_args(false);
+  }
 
   std::string token_name;
   std::vector<std::string> token_paths;
@@ -119,7 +218,7 @@ int main(int argc, char** argv) {
   token_cmd->add_option("--max-devices", token_max_devices, "devices it may hold at once");
 
   CLI11_PARSE(app, argc, argv);
-  if (*validate_cmd) return validate(to_validate, policy_dir);
+  if (*validate_cmd) return validate(to_validate, policy_dir, validate_world, plugins);
   if (*token_cmd) {
     if (token_paths.empty()) {
       token_paths = icars::app::device_manager_paths();
@@ -142,9 +241,6 @@ int main(int argc, char** argv) {
     std::printf("%s\n%s\n", token.c_str(), icars::app::access_entry(principal).c_str());
     return 0;
   }
-  if (*behaviors_cmd) {
-    list_behaviors();
-    return 0;
-  }
+  if (*behaviors_cmd) return list_behaviors(plugins);
   return icars::app::run(run);
 }

@@ -2,6 +2,7 @@
 // this process, or elsewhere — running a policy, with the report observers (icars/report/) for
 // the timeline, the JSON-lines trace, the summary and the plot.
 #include "mediator.h"
+#include "registries.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -15,12 +16,16 @@
 #include <vector>
 
 #include "announcement.h"
+#include "icars/clock/lock_step.h"
+#include "icars/control/policy_check.h"
 #include "icars/home/behaviors.h"
 #include "icars/home/clock_follower.h"
+#include "icars/home/sim/house_vocabulary.h"
 #include "icars/home/sim/simulated_house.h"
 #include "icars/report/recorders.h"
 #include "icars/report/run_summary.h"
 #include "icars/server/mediating_server.h"
+#include "icars/server/plugin.h"
 #include "icars/sim/svg_plot.h"
 
 namespace icars::app {
@@ -90,7 +95,7 @@ home::SimulatedHouseOptions embedded_house(const RunOptions& options, b::Trace& 
     r.source = e.device;
     r.text = fmt::format("{}: {}{}", e.device, e.what, e.value.empty() ? "" : " " + e.value);
     r.with("device", e.device).with("what", e.what).with("value", e.value)
-        .with("request", static_cast<double>(e.request_id));
+        .with("request", static_cast<std::int64_t>(e.request_id));
     trace.record(std::move(r));
   };
   return house_options;
@@ -140,6 +145,12 @@ int run(const RunOptions& options) {
   };
 
   // --- Inputs: every mistake here is reported before anything starts. ---------------------------
+  // Lock-step: the embedded house's clock moves only when the mediator and the devices have
+  // done what its last event started, so the run is the same at any speed.
+  const bool lock_step = !options.external && !options.free_running;
+  if (options.speed <= 0 && !lock_step) {
+    return fail(2, "--speed max needs the lock-step clock of the embedded house (not --external or --free-running)");
+  }
   sim::House house;
   try {
     house = sim::load_house(options.world);
@@ -149,17 +160,38 @@ int run(const RunOptions& options) {
   server::ServerOptions server_options;
   server_options.listen = options.listen;
   server_options.policy_dir = options.policy_dir;
-  server_options.behaviors = home::behavior_registry();
-  server_options.adaptors = home::adaptors();
-  server_options.composers = {home::composer()};
+  std::optional<Registries> registries;
+  try {
+    registries.emplace(options.plugins);
+  } catch (const server::PluginError& e) {
+    return fail(2, e.what());
+  }
+  // The house first: a device no type can make stops the run at its line.
+  if (!options.external) {
+    try {
+      registries->sim_devices.check(house);
+    } catch (const sim::HouseError& e) {
+      return fail(2, e.what());
+    }
+  }
+  server_options.behaviors = registries->behaviors;
+  server_options.adaptors = registries->adaptors;
+  server_options.composers = registries->composers;
   server_options.planet.logger = spdlog::default_logger();
   server_options.planet.tls = options.tls;
+  const auto activity = lock_step ? Activity::create() : nullptr;
+  server_options.planet.connection.activity = activity;
   const c::PolicyRepository repository(options.policy_dir);
   std::string policy_name;
   try {
     const auto parsed = c::parse_policy_file(repository.path_of(options.policy), server_options.behaviors);
     for (const auto& w : parsed.warnings) std::fprintf(stderr, "%s\n", w.to_string().c_str());
     policy_name = parsed.policy.name;
+    // What would go wrong only while running (or never): names the house does not have,
+    // conditions on events that cannot reach them.
+    const auto problems = c::check_policy(parsed.policy, server_options.behaviors, home::house_vocabulary(house));
+    for (const auto& d : problems) std::fprintf(stderr, "%s\n", d.to_string().c_str());
+    if (!problems.empty()) return 2;
   } catch (const c::PolicyError& e) {
     for (const auto& d : e.diagnostics()) std::fprintf(stderr, "%s\n", d.to_string().c_str());
     return 2;
@@ -225,7 +257,14 @@ int run(const RunOptions& options) {
   std::vector<std::uint64_t> world_listeners;
   SimClock* clock = nullptr;
   if (!options.external) {
-    simulated = std::make_unique<home::SimulatedHouse>(house, embedded_house(options, trace, house_token));
+    auto house_options = embedded_house(options, trace, house_token);
+    house_options.device_types = registries->sim_devices;
+    house_options.activity = activity;
+    try {
+      simulated = std::make_unique<home::SimulatedHouse>(house, std::move(house_options));
+    } catch (const sim::HouseError& e) {  // a device's parameters its type cannot use
+      return fail(2, e.what());
+    }
     world_listeners = trace_world(simulated->world(), trace);
     simulated->start("127.0.0.1", bound);
     if (!simulated->manager().wait_registered(1, 30s)) {
@@ -277,8 +316,17 @@ int run(const RunOptions& options) {
     return 2;
   }
 
+  std::optional<LockStepDriver> driver;
+  if (lock_step) {
+    LockStepOptions pace;
+    pace.speedup = options.speed;
+    pace.until = stop_at;
+    pace.warn = [&trace](Time t, const std::string& what) { trace.record(note(t, what)); };
+    driver.emplace(simulated->clock(), *activity, std::move(pace));
+    driver->start();
+  }
   bool interrupted = false;
-  while (clock->now() < stop_at) {
+  while (driver ? !driver->finished() : clock->now() < stop_at) {
     const timespec wait{0, 20'000'000};
     const int signal = sigtimedwait(&signals, nullptr, &wait);
     if (signal == SIGHUP) {
@@ -288,6 +336,7 @@ int run(const RunOptions& options) {
       break;
     }
   }
+  if (driver) driver->stop();
   const auto ended_at = clock->now();
   server->stop_policy(5s);
   // The run is over: the house's devices going away with it are no outage to report.
@@ -298,11 +347,14 @@ int run(const RunOptions& options) {
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
-  summary.print(stdout, policy_name, started_at, ended_at, wall, options.speed);
+  const auto pace = options.speed > 0 ? fmt::format("at {:g}x", options.speed) : std::string("as fast as possible");
+  summary.print(stdout, policy_name, started_at, ended_at, wall,
+                lock_step ? "lock-step " + pace : (options.external ? "following the house's clock " : "free-running ") + pace);
   if (interrupted) std::printf("(interrupted)\n");
   if (!options.plot_file.empty()) {
     try {
-      sim::write_svg(options.plot_file, house, summary.plot(fmt::format("{} on {}", policy_name, house.name), house));
+      const auto title = fmt::format("{} on {}", policy_name, house.name);
+      sim::write_svg(options.plot_file, house, summary.plot(title, house, started_at, ended_at));
       std::printf("plot: %s\n", options.plot_file.c_str());
     } catch (const std::exception& e) {
       return fail(1, e.what());

@@ -3,6 +3,7 @@
 
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "icars/planet/security.h"
 
@@ -12,7 +13,10 @@ struct RunOptions {
   std::string policy;          // a policy file, or a name in policy_dir
   std::string policy_dir = "examples/smart_home";
   std::string world;           // the house file
-  double speed = 1500;         // simulated seconds per wall-clock second
+  double speed = 1500;         // simulated seconds per wall-clock second; 0: as fast as possible
+                               // (lock-step only)
+  bool free_running = false;   // the embedded house's clock runs with the wall clock, not in
+                               // lock-step with the mediator (icars/clock/lock_step.h)
   std::string until = "07:30"; // stop at this time of day (the next one after the house's start)
   int days = 1;                // ... or the days-th one: run that many simulated days
   std::string trace_file;      // JSON lines
@@ -22,6 +26,7 @@ struct RunOptions {
   bool quiet = false;          // no timeline on stdout, only the summary
   planet::TlsOptions tls;      // TLS of the listener (docs/security.md)
   std::string access_file;     // who may connect and call what; empty: anyone (loopback only)
+  std::vector<std::string> plugins;  // shared libraries adding behavior, adaptor, composer types
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

@@ -70,7 +70,8 @@ void register_tutorial_behaviors(b::BehaviorRegistry& registry) {
       "CoolDown", "runs a fan while the room is too hot; propagates TooHot and Comfortable",
       {param("hot", T::number, "26", "degrees Celsius above which the fan runs"),
        param("speed", T::integer, "100", "the fan's speed while it runs, in percent"),
-       param("room", T::string, "", "the fan and thermometer of this room (default: any)")});
+       param("room", T::string, "", "the fan and thermometer of this room (default: any)").naming("room")});
+  registry.declare_events("CoolDown", {{"TooHot", {"celsius", "room"}}, {"Comfortable", {"celsius", "room"}}});
 }
 
 }  // namespace tutorial

@@ -20,13 +20,13 @@ std::string_view to_string(Status status) {
 std::string describe_event(const Event& e) {
   std::string out = e.type();
   for (const auto& [name, value] : e.items()) {
+    const auto v = trace_value(value);
+    if (!v) continue;
     std::string text;
-    if (value.is<std::string>()) text = value.as<std::string>();
-    else if (value.is<bool>()) text = value.as<bool>() ? "true" : "false";
-    else if (value.is<double>()) text = fmt::format("{:g}", value.as<double>());
-    else if (value.is<std::int32_t>()) text = std::to_string(value.as<std::int32_t>());
-    else if (value.is<std::int64_t>()) text = std::to_string(value.as<std::int64_t>());
-    else continue;
+    if (const auto* s = std::get_if<std::string>(&*v)) text = *s;
+    else if (const auto* b = std::get_if<bool>(&*v)) text = *b ? "true" : "false";
+    else if (const auto* d = std::get_if<double>(&*v)) text = fmt::format("{:g}", *d);
+    else text = std::to_string(std::get<std::int64_t>(*v));
     out += fmt::format(" {}={}", name, text);
   }
   return out;

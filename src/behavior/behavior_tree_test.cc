@@ -385,6 +385,46 @@ TEST(Composite, ConcurrentAnyAndFirst) {
   EXPECT_EQ(h2.find("a").status(), b::Status::halted);
 }
 
+TEST(Composite, FallbackTriesChildrenInOrderUntilOneSucceeds) {
+  Log log;
+  Harness h;
+  auto fallback = node<b::FallbackBehavior>("fallback");
+  fallback->add_child(node<Probe>("a", log));
+  fallback->add_child(node<Probe>("b", log));
+  fallback->add_child(node<Probe>("c", log));
+  h.start(std::move(fallback));
+  EXPECT_EQ(log.get(), std::vector<std::string>{"a entry"});
+  h.broadcast(to("Break", "a"));
+  EXPECT_TRUE(log.has("b entry"));
+  h.broadcast(to("Finish", "b"));
+  EXPECT_EQ(h.done, b::Status::succeeded);
+  EXPECT_FALSE(log.has("c entry"));
+
+  Log log2;
+  Harness h2;
+  auto all_fail = node<b::FallbackBehavior>("fallback");
+  all_fail->add_child(node<Probe>("a", log2));
+  all_fail->add_child(node<Probe>("b", log2));
+  h2.start(std::move(all_fail));
+  h2.broadcast(to("Break", "a"));
+  h2.broadcast(to("Break", "b"));
+  EXPECT_EQ(h2.done, b::Status::failed);
+  EXPECT_EQ(h2.reason, "every child failed; last: b failed: broken on purpose");
+
+  Log log3;
+  Harness h3;
+  auto halted = node<b::FallbackBehavior>("fallback");
+  halted->add_child(node<Probe>("a", log3));
+  halted->add_child(node<Probe>("b", log3));
+  h3.start(std::move(halted));
+  h3.broadcast(to("Break", "a"));
+  h3.runtime.run([&] { h3.root->halt(); });
+  h3.settle();
+  EXPECT_TRUE(log3.has("b exit"));
+  EXPECT_EQ(h3.find("b").status(), b::Status::halted);
+  EXPECT_FALSE(h3.done);
+}
+
 TEST(Teardown, HaltingARootReleasesEverySubscriptionAndTimerOfTheSubtree) {
   Log log;
   Harness h;

@@ -59,6 +59,30 @@ void SequentialBehavior::child_done(Behavior& child) {
   succeed();
 }
 
+// --- Fallback ---------------------------------------------------------------------------------
+
+void FallbackBehavior::entry() {
+  index_ = 0;
+  if (children().empty()) {
+    fail("no child to try");
+    return;
+  }
+  children()[index_]->start();
+}
+
+void FallbackBehavior::child_done(Behavior& child) {
+  if (!running() || index_ >= children().size() || children()[index_].get() != &child) return;
+  if (child.status() == Status::succeeded) {
+    succeed();
+    return;
+  }
+  if (++index_ < children().size()) {
+    children()[index_]->start();
+    return;
+  }
+  fail(fmt::format("every child failed; last: {} failed: {}", child.name(), child.failure_reason()));
+}
+
 // --- Concurrent -------------------------------------------------------------------------------
 
 std::string_view to_string(Completion completion) {

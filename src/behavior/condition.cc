@@ -90,9 +90,9 @@ std::size_t column_of(std::string_view text, std::size_t pos) {
 }
 
 // Source text for an error message: printable ASCII as is, other bytes as \xNN, long text cut.
-std::string quoted(std::string_view s) {
+std::string printable(std::string_view s) {
   constexpr std::size_t kMaxShown = 24;
-  std::string out = "'";
+  std::string out;
   for (std::size_t i = 0; i < s.size() && i < kMaxShown; ++i) {
     const auto b = static_cast<unsigned char>(s[i]);
     if (b >= 0x20 && b < 0x7F) {
@@ -102,8 +102,11 @@ std::string quoted(std::string_view s) {
     }
   }
   if (s.size() > kMaxShown) out += "...";
-  return out + "'";
+  return out;
 }
+
+// Source text in single quotes, for text that is not a quoted string literal itself.
+std::string quoted(std::string_view s) { return fmt::format("'{}'", printable(s)); }
 
 enum class Tok {
   end,
@@ -176,7 +179,10 @@ class Parser {
 
   std::string found() const {
     if (tok_.kind == Tok::end) return "end of condition";
-    return quoted(text_.substr(tok_.pos, tok_.length));
+    const std::string_view source = text_.substr(tok_.pos, tok_.length);
+    // A string literal's source text has its quotes already.
+    if (tok_.kind == Tok::string) return "string " + printable(source);
+    return quoted(source);
   }
 
   static NodePtr make_literal(ConditionValue v) {
@@ -696,6 +702,31 @@ const std::string& Condition::text() const {
 std::vector<std::string> Condition::identifiers() const {
   if (program_ == nullptr) return {};
   return program_->identifiers;
+}
+
+namespace {
+
+void collect_compared_strings(const ConditionNode& node,
+                              std::vector<std::pair<std::string, std::string>>& out) {
+  if (node.kind == NodeKind::compare && (node.op == CompareOp::eq || node.op == CompareOp::ne) &&
+      node.children.size() == 2) {
+    const auto& a = *node.children[0];
+    const auto& b = *node.children[1];
+    const auto* name = a.kind == NodeKind::name ? &a : b.kind == NodeKind::name ? &b : nullptr;
+    const auto* literal = a.kind == NodeKind::literal ? &a : b.kind == NodeKind::literal ? &b : nullptr;
+    if (name != nullptr && literal != nullptr && std::holds_alternative<std::string>(literal->literal)) {
+      out.emplace_back(name->name, std::get<std::string>(literal->literal));
+    }
+  }
+  for (const auto& child : node.children) collect_compared_strings(*child, out);  // at most 64 deep
+}
+
+}  // namespace
+
+std::vector<std::pair<std::string, std::string>> Condition::compared_strings() const {
+  std::vector<std::pair<std::string, std::string>> out;
+  if (program_ != nullptr) collect_compared_strings(*program_->root, out);
+  return out;
 }
 
 }  // namespace icars::behavior

@@ -331,6 +331,13 @@ TEST(Condition, ErrorMessagesNameTheColumnAndWhatWasExpected) {
   EXPECT_EQ(message("time > 25:00"),
             "column 8: '25:00' is not a time of day (expected HH:MM or HH:MM:SS, hours 00-23, "
             "minutes and seconds 00-59)");
+  // A string literal is shown as written, in its own quotes, not quoted a second time.
+  EXPECT_EQ(message("exists('index')"),
+            "column 8: exists takes a bare name, e.g. exists(battery), found string 'index'");
+  EXPECT_EQ(message("place == \"sofa\" \"bed\""),
+            "column 17: expected 'and', 'or' or end of condition, found string \"bed\"");
+  EXPECT_EQ(message("lower('a' 'b')"),
+            "column 11: expected ')' after the arguments of lower, found string 'b'");
 }
 
 struct BadCondition {

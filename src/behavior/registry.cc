@@ -11,8 +11,21 @@ namespace icars::behavior {
 void BehaviorRegistry::add(std::string type, std::string doc, std::vector<ParamSpec> params,
                            Factory factory) {
   if (entries_.contains(type)) throw std::invalid_argument("behavior type " + type + " is already registered");
-  Entry entry{type, std::move(doc), std::move(params), std::move(factory)};
+  Entry entry{type, std::move(doc), std::move(params), std::move(factory), std::nullopt};
   entries_.emplace(std::move(type), std::move(entry));
+}
+
+void BehaviorRegistry::merge(BehaviorRegistry&& other) {
+  for (const auto& [type, entry] : other.entries_) {
+    if (entries_.contains(type)) throw std::invalid_argument("behavior type " + type + " is already registered");
+  }
+  entries_.merge(other.entries_);
+}
+
+void BehaviorRegistry::declare_events(std::string_view type, std::vector<EventSpec> events) {
+  auto it = entries_.find(type);
+  if (it == entries_.end()) throw std::invalid_argument(fmt::format("behavior type {} is not registered", type));
+  it->second.emits = std::move(events);
 }
 
 const BehaviorRegistry::Entry* BehaviorRegistry::find(std::string_view type) const {
@@ -44,6 +57,7 @@ Params BehaviorRegistry::check(std::string_view type,
     }
     try {
       check_param(name, spec->type, value);
+      if (spec->check) spec->check(value);
     } catch (const ParamError& e) {
       throw ParamError(fmt::format("{}: {}", type, e.what()));
     }
@@ -87,8 +101,10 @@ void register_generic_behaviors(BehaviorRegistry& registry) {
   registry.add<Wait>("Wait", "waits for a duration of simulated time, then succeeds",
                      {param("duration", ParamType::duration, std::nullopt, "how long")});
   registry.add<Emit>("Emit", "propagates one event, then succeeds",
-                     {param("event", ParamType::string, std::nullopt, "the event's type"),
+                     {param("event", ParamType::string, std::nullopt, "the event's type").naming("event"),
                       param("delay", ParamType::duration, "0s", "wait this long first")});
+  registry.declare_events("Wait", {});
+  registry.declare_events("Emit", {});  // the one of its parameter `event`, without properties
 }
 
 }  // namespace icars::behavior

@@ -16,8 +16,8 @@ struct Runtime::TimerTable {
   std::unordered_map<std::uint64_t, std::uint64_t> clock_ids;  // timer id -> clock event id
 };
 
-Runtime::Runtime(Clock& clock)
-    : clock_(clock), work_(io_.get_executor()), timers_(std::make_shared<TimerTable>()) {
+Runtime::Runtime(Clock& clock, std::shared_ptr<Activity> activity)
+    : clock_(clock), activity_(std::move(activity)), work_(io_.get_executor()), timers_(std::make_shared<TimerTable>()) {
   thread_ = std::thread([this] { io_.run(); });
 }
 
@@ -34,7 +34,7 @@ Runtime::~Runtime() {
 
 void Runtime::post(std::function<void()> fn) {
   ++outstanding_;
-  asio::post(io_, [this, fn = std::move(fn)] {
+  asio::post(io_, [this, fn = std::move(fn), hold = Activity::Hold(activity_.get())]() mutable {
     try {
       fn();
     } catch (const std::exception& e) {
@@ -44,6 +44,7 @@ void Runtime::post(std::function<void()> fn) {
     }
     ++handlers_run_;
     --outstanding_;
+    hold.release();
   });
 }
 

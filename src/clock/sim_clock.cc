@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <tuple>
 
 namespace icars {
 
@@ -14,39 +15,29 @@ Time SimClock::now() const {
 
 std::uint64_t SimClock::schedule_at(Time t, std::function<void()> fn) {
   std::lock_guard lock(mutex_);
-  if (t < now_) t = now_;
-  const auto id = next_id_++;
-  queue_.emplace(Key{t, id}, std::move(fn));
-  times_.emplace(id, t);
-  return id;
+  return timers_.add(t < now_ ? now_ : t, std::move(fn));
 }
 
 std::uint64_t SimClock::schedule_after(Time delay, std::function<void()> fn) {
   std::lock_guard lock(mutex_);
-  const auto t = now_ + (delay < Time{0} ? Time{0} : delay);
-  const auto id = next_id_++;
-  queue_.emplace(Key{t, id}, std::move(fn));
-  times_.emplace(id, t);
-  return id;
+  return timers_.add(now_ + (delay < Time{0} ? Time{0} : delay), std::move(fn));
 }
 
 bool SimClock::cancel(std::uint64_t id) {
   std::function<void()> dropped;  // destroyed outside the lock: it may own anything
   std::lock_guard lock(mutex_);
-  const auto it = times_.find(id);
-  if (it == times_.end()) return false;
-  const auto entry = queue_.find(Key{it->second, id});
-  dropped = std::move(entry->second);
-  queue_.erase(entry);
-  times_.erase(it);
-  return true;
+  return timers_.remove(id, dropped);
 }
 
-void SimClock::advance_to(Time t) {
+void SimClock::advance_to(Time t) { advance(t, false); }
+
+bool SimClock::step(Time limit) { return advance(limit, true); }
+
+bool SimClock::advance(Time t, bool one_event) {
   {
     std::lock_guard lock(mutex_);
     if (advancing_thread_ == std::this_thread::get_id()) {
-      throw std::logic_error("SimClock::advance_to called from inside one of its own events");
+      throw std::logic_error("SimClock advanced from inside one of its own events");
     }
   }
   std::lock_guard advancing(advance_mutex_);
@@ -62,19 +53,18 @@ void SimClock::advance_to(Time t) {
     }
   } reset{*this};
 
-  for (;;) {
+  for (bool ran = false;;) {
     std::function<void()> fn;
     {
       std::lock_guard lock(mutex_);
-      if (queue_.empty() || queue_.begin()->first.first > t) {
-        if (t > now_) now_ = t;
-        return;
+      if (one_event && ran) return true;
+      if (timers_.empty() || timers_.next_due() > t) {
+        if (!one_event && t > now_) now_ = t;
+        return ran;
       }
-      auto node = queue_.extract(queue_.begin());
-      now_ = node.key().first;
-      times_.erase(node.key().second);
-      fn = std::move(node.mapped());
+      std::tie(now_, fn) = timers_.pop();
     }
+    ran = true;
     fn();
   }
 }
@@ -83,13 +73,13 @@ void SimClock::advance_by(Time d) { advance_to(now() + d); }
 
 std::size_t SimClock::pending() const {
   std::lock_guard lock(mutex_);
-  return queue_.size();
+  return timers_.size();
 }
 
 std::optional<Time> SimClock::next_event_time() const {
   std::lock_guard lock(mutex_);
-  if (queue_.empty()) return std::nullopt;
-  return queue_.begin()->first.first;
+  if (timers_.empty()) return std::nullopt;
+  return timers_.next_due();
 }
 
 // --- RealTimeDriver ------------------------------------------------------------------------
@@ -105,29 +95,12 @@ RealTimeDriver::RealTimeDriver(SimClock& clock, double speedup, Time tick)
 RealTimeDriver::~RealTimeDriver() { stop(); }
 
 void RealTimeDriver::start() {
-  std::lock_guard lock(mutex_);
-  if (thread_.joinable()) return;
-  stopping_ = false;
-  thread_ = std::thread(
-      [this, wall = std::chrono::steady_clock::now(), sim = clock_.now()] { run(wall, sim); });
+  thread_.start([this, wall = std::chrono::steady_clock::now(), sim = clock_.now()] { run(wall, sim); });
 }
 
-void RealTimeDriver::stop() {
-  std::thread thread;
-  {
-    std::lock_guard lock(mutex_);
-    if (!thread_.joinable()) return;
-    stopping_ = true;
-    thread = std::move(thread_);
-  }
-  wake_.notify_all();
-  thread.join();
-}
+void RealTimeDriver::stop() { thread_.stop(); }
 
-bool RealTimeDriver::running() const {
-  std::lock_guard lock(mutex_);
-  return thread_.joinable();
-}
+bool RealTimeDriver::running() const { return thread_.running(); }
 
 void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, Time sim_start) {
   using namespace std::chrono;
@@ -137,10 +110,7 @@ void RealTimeDriver::run(std::chrono::steady_clock::time_point wall_start, Time 
   };
   Time next = sim_start + tick_;
   for (;;) {
-    {
-      std::unique_lock lock(mutex_);
-      if (wake_.wait_until(lock, wall_for(next), [this] { return stopping_; })) return;
-    }
+    if (!thread_.wait_until(wall_for(next))) return;
     // Catch up in one advance if events ran slower than real time.
     const auto elapsed = duration<double, std::milli>(steady_clock::now() - wall_start).count();
     const auto ticks =

@@ -21,12 +21,11 @@ WallClock::WallClock(Time start)
     : origin_(std::chrono::steady_clock::now()), start_(start), thread_([this] { run(); }) {}
 
 WallClock::~WallClock() {
-  std::map<Key, std::function<void()>> dropped;  // destroyed outside the lock
+  decltype(timers_.take_all()) dropped;  // destroyed outside the lock
   {
     std::lock_guard lock(mutex_);
     stopping_ = true;
-    dropped.swap(queue_);
-    times_.clear();
+    dropped = timers_.take_all();
   }
   wake_.notify_all();
   thread_.join();
@@ -44,9 +43,7 @@ std::uint64_t WallClock::schedule_at(Time t, std::function<void()> fn) {
   std::uint64_t id = 0;
   {
     std::lock_guard lock(mutex_);
-    id = next_id_++;
-    queue_.emplace(Key{t, id}, std::move(fn));
-    times_.emplace(id, t);
+    id = timers_.add(t, std::move(fn));
   }
   wake_.notify_all();
   return id;
@@ -59,36 +56,28 @@ std::uint64_t WallClock::schedule_after(Time delay, std::function<void()> fn) {
 bool WallClock::cancel(std::uint64_t id) {
   std::function<void()> dropped;  // destroyed outside the lock: it may own anything
   std::lock_guard lock(mutex_);
-  const auto it = times_.find(id);
-  if (it == times_.end()) return false;
-  const auto entry = queue_.find(Key{it->second, id});
-  dropped = std::move(entry->second);
-  queue_.erase(entry);
-  times_.erase(it);
-  return true;
+  return timers_.remove(id, dropped);
 }
 
 std::size_t WallClock::pending() const {
   std::lock_guard lock(mutex_);
-  return queue_.size();
+  return timers_.size();
 }
 
 void WallClock::run() {
   std::unique_lock lock(mutex_);
   for (;;) {
     if (stopping_) return;
-    if (queue_.empty()) {
+    if (timers_.empty()) {
       wake_.wait(lock);
       continue;
     }
-    const auto due = wall_for(queue_.begin()->first.first);
+    const auto due = wall_for(timers_.next_due());
     if (std::chrono::steady_clock::now() < due) {
       wake_.wait_until(lock, due);  // woken early by a sooner timer, a cancel or the end
       continue;
     }
-    auto node = queue_.extract(queue_.begin());
-    times_.erase(node.key().second);
-    auto fn = std::move(node.mapped());
+    auto fn = timers_.pop().second;
     lock.unlock();
     fn();
     fn = nullptr;  // what the timer owned goes before the lock is taken again

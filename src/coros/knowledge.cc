@@ -230,6 +230,53 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   return c;
 }
 
+nlohmann::json AgentConfiguration::to_json() const {
+  const AgentConfiguration defaults;
+  json out;
+  out["id"] = id;
+  out["role"] = role;
+  out["ip"] = transport.ip;
+  out["port"] = transport.port;
+  out["broadcast"] = {{"address", transport.broadcast_address}, {"port", transport.broadcast_port}};
+  out["hello_period_ms"] = hello_period.count();
+  out["neighbor_expiry_ms"] = neighbor_expiry.count();
+  out["bid_window_ms"] = bid_window.count();
+  out["retry_period_ms"] = retry_period.count();
+  out["max_retries"] = max_retries;
+  if (!map.empty()) out["map"] = map.string();
+  const bool robot_set = start != defaults.start || speed != defaults.speed ||
+                         radius != defaults.radius || speedup != defaults.speedup ||
+                         robot_kind != defaults.robot_kind ||
+                         ros_namespace != defaults.ros_namespace;
+  if (role == "robot" || robot_set) {
+    json robot = {{"start", start},
+                  {"speed", speed},
+                  {"radius", radius},
+                  {"speedup", speedup},
+                  {"kind", robot_kind}};
+    if (!ros_namespace.empty()) robot["ros_namespace"] = ros_namespace;
+    out["robot"] = std::move(robot);
+  }
+  if (!track_file.empty()) out["track_file"] = track_file.string();
+  const bool user_set = !deliveries.empty() || expect_robots != defaults.expect_robots ||
+                        start_after != defaults.start_after ||
+                        delivery_interval != defaults.delivery_interval ||
+                        exit_when_done != defaults.exit_when_done;
+  if (role == "user" || user_set) {
+    json list = json::array();
+    for (const auto& [pickup, dropoff] : deliveries) list.push_back(json::array({pickup, dropoff}));
+    out["user"] = {{"deliveries", std::move(list)},
+                   {"expect_robots", expect_robots},
+                   {"start_after_ms", start_after.count()},
+                   {"delivery_interval_ms", delivery_interval.count()},
+                   {"exit_when_done", exit_when_done}};
+  }
+  if (transport.faults != FaultInjection{}) out["faults"] = transport.faults.spec();
+  if (transport.key) out["key"] = transport.key->to_hex();
+  if (transport.insecure) out["insecure"] = true;
+  return out;
+}
+
 AgentConfiguration AgentConfiguration::load(const std::filesystem::path& file) {
   std::ifstream in(file);
   if (!in) throw CorosError(fmt::format("{}: cannot read the file", file.string()));

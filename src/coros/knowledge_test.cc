@@ -1,6 +1,6 @@
 // The knowledge base: the neighbour table expires silent agents and ignores reordered HELLOs,
-// the task table only moves forward, configurations are checked with clear errors, and costs
-// come from the planner, not straight lines.
+// the task table only moves forward, configurations are checked with clear errors and written
+// back as they were read, and costs come from the planner, not straight lines.
 #include "icars/coros/knowledge.h"
 
 #include <gtest/gtest.h>
@@ -131,6 +131,144 @@ TEST(CorosConfiguration, BrokenFilesSayWhatIsWrong) {
     EXPECT_NE(error.find(expected), std::string::npos) << json << " -> " << error;
   }
   EXPECT_THROW(AgentConfiguration::load("/nonexistent/agent.json"), CorosError);
+}
+
+// Every field parse() reads, compared one by one.
+void expect_same(const AgentConfiguration& a, const AgentConfiguration& b) {
+  EXPECT_EQ(a.id, b.id);
+  EXPECT_EQ(a.role, b.role);
+  EXPECT_EQ(a.transport.ip, b.transport.ip);
+  EXPECT_EQ(a.transport.port, b.transport.port);
+  EXPECT_EQ(a.transport.broadcast_address, b.transport.broadcast_address);
+  EXPECT_EQ(a.transport.broadcast_port, b.transport.broadcast_port);
+  EXPECT_EQ(a.hello_period, b.hello_period);
+  EXPECT_EQ(a.neighbor_expiry, b.neighbor_expiry);
+  EXPECT_EQ(a.bid_window, b.bid_window);
+  EXPECT_EQ(a.retry_period, b.retry_period);
+  EXPECT_EQ(a.max_retries, b.max_retries);
+  EXPECT_EQ(a.map, b.map);
+  EXPECT_EQ(a.start, b.start);
+  EXPECT_EQ(a.speed, b.speed);
+  EXPECT_EQ(a.radius, b.radius);
+  EXPECT_EQ(a.speedup, b.speedup);
+  EXPECT_EQ(a.robot_kind, b.robot_kind);
+  EXPECT_EQ(a.ros_namespace, b.ros_namespace);
+  EXPECT_EQ(a.track_file, b.track_file);
+  EXPECT_EQ(a.deliveries, b.deliveries);
+  EXPECT_EQ(a.expect_robots, b.expect_robots);
+  EXPECT_EQ(a.start_after, b.start_after);
+  EXPECT_EQ(a.delivery_interval, b.delivery_interval);
+  EXPECT_EQ(a.exit_when_done, b.exit_when_done);
+  EXPECT_EQ(a.transport.faults.spec(), b.transport.faults.spec());
+  EXPECT_TRUE(a.transport.faults == b.transport.faults);
+  ASSERT_EQ(a.transport.key.has_value(), b.transport.key.has_value());
+  if (a.transport.key) {
+    EXPECT_EQ(a.transport.key->to_hex(), b.transport.key->to_hex());
+  }
+  EXPECT_EQ(a.transport.insecure, b.transport.insecure);
+}
+
+AgentConfiguration read_back(const AgentConfiguration& c) {
+  return AgentConfiguration::parse(c.to_json().dump(2), "/elsewhere", c.id + ".json");
+}
+
+const std::string kHex = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff";
+
+TEST(CorosConfiguration, ToJsonIsReadBackAsTheSameConfiguration) {
+  AgentConfiguration robot;
+  robot.id = "robot7";
+  robot.role = "robot";
+  robot.transport.ip = "10.0.0.7";
+  robot.transport.port = 40007;
+  robot.transport.broadcast_address = "10.0.0.255";
+  robot.transport.broadcast_port = 47999;
+  robot.hello_period = 150ms;
+  robot.neighbor_expiry = 900ms;
+  robot.bid_window = 425ms;
+  robot.retry_period = 70ms;
+  robot.max_retries = 9;
+  robot.map = "/maps/office_floor.xml";  // absolute: parse's base_dir does not apply
+  robot.start = "1.25,3.50";
+  robot.speed = 0.35;
+  robot.radius = 0.3;
+  robot.speedup = 12.5;
+  robot.robot_kind = "ros";
+  robot.ros_namespace = "tb3_7";
+  robot.track_file = "/tmp/robot7-track.json";
+  robot.transport.faults = FaultInjection::parse("drop=0.1,duplicate=0.05,delay=0.3,seed=42");
+  robot.transport.faults.seed = 0xFFFFFFFFFFFFFFFFULL;  // the whole range of a seed
+  robot.transport.key = FleetKey::from_hex(kHex);
+  const nlohmann::json robot_json = robot.to_json();
+  EXPECT_TRUE(robot_json.contains("robot"));
+  EXPECT_FALSE(robot_json.contains("user"));  // a section only for its role
+  EXPECT_EQ(robot_json.value("key", ""), kHex);
+  EXPECT_FALSE(robot_json.contains("insecure"));
+  expect_same(read_back(robot), robot);
+
+  AgentConfiguration user;
+  user.id = "user";
+  user.role = "user";
+  user.map = "/maps/office_floor.xml";
+  user.deliveries = {{"office_101", "office_112"}, {"office_104", "office_109"}};
+  user.expect_robots = 5;
+  user.start_after = 0ms;
+  user.delivery_interval = 250ms;
+  user.exit_when_done = false;
+  user.transport.faults.delay = 0.2;
+  user.transport.faults.max_delay_ms = 80;
+  user.transport.key = FleetKey::from_hex(kHex);
+  const nlohmann::json user_json = user.to_json();
+  EXPECT_FALSE(user_json.contains("robot"));
+  EXPECT_FALSE(user_json.contains("track_file"));
+  EXPECT_EQ(user_json.value("faults", ""), "drop=0,duplicate=0,delay=0.2,max_delay_ms=80,seed=1");
+  expect_same(read_back(user), user);
+
+  // A monitor without a key: insecure, no faults, no sections unless they hold something.
+  AgentConfiguration monitor;
+  monitor.id = "monitor";
+  monitor.role = "monitor";
+  monitor.transport.insecure = true;
+  const nlohmann::json monitor_json = monitor.to_json();
+  EXPECT_FALSE(monitor_json.contains("faults"));
+  EXPECT_FALSE(monitor_json.contains("robot"));
+  EXPECT_FALSE(monitor_json.contains("user"));
+  EXPECT_FALSE(monitor_json.contains("map"));
+  EXPECT_FALSE(monitor_json.contains("key"));
+  EXPECT_TRUE(monitor_json.value("insecure", false));
+  expect_same(read_back(monitor), monitor);
+  monitor.radius = 0.4;  // loads its map with it: kept
+  EXPECT_EQ(monitor.to_json()["robot"].value("radius", 0.0), 0.4);
+  expect_same(read_back(monitor), monitor);
+}
+
+TEST(CorosConfiguration, ParsedFilesAreWrittenBackAsTheyWere) {
+  // Every key parse() reads (but key_file, which it turns into the key), no default left out.
+  const std::string robot = R"({
+    "id": "robot1", "role": "robot", "ip": "127.0.0.1", "port": 0,
+    "broadcast": {"address": "127.255.255.255", "port": 47800},
+    "hello_period_ms": 200, "neighbor_expiry_ms": 1000, "bid_window_ms": 400,
+    "retry_period_ms": 100, "max_retries": 20, "map": "/maps/office_floor.xml",
+    "robot": {"start": "dock1", "speed": 0.5, "radius": 0.25, "speedup": 20, "kind": "sim"},
+    "track_file": "robot1-track.json",
+    "faults": "drop=0.2,duplicate=0.2,delay=0.3,max_delay_ms=50,seed=17",
+    "key": ")" + kHex + R"("})";
+  const std::string user = R"({
+    "id": "user", "role": "user", "ip": "192.168.1.20", "port": 47001,
+    "broadcast": {"address": "192.168.1.255", "port": 47999},
+    "hello_period_ms": 100, "neighbor_expiry_ms": 500, "bid_window_ms": 300,
+    "retry_period_ms": 50, "max_retries": 7, "map": "/maps/office_floor.xml",
+    "user": {"deliveries": [["a", "b"], ["c", "d"]], "expect_robots": 5, "start_after_ms": 2000,
+             "delivery_interval_ms": 100, "exit_when_done": false},
+    "insecure": true})";
+  for (const auto& text : {robot, user}) {
+    const auto c = AgentConfiguration::parse(text, "/maps", "agent.json");
+    EXPECT_EQ(c.to_json(), nlohmann::json::parse(text)) << c.to_json().dump(2);
+    expect_same(read_back(c), c);
+  }
+  // A relative map is read relative to the file and written as read.
+  const auto relative = AgentConfiguration::parse(
+      R"({"id": "r", "map": "office.xml", "insecure": true})", "/maps", "r.json");
+  EXPECT_EQ(relative.to_json().value("map", ""), "/maps/office.xml");
 }
 
 TEST(CorosMapPlanner, CostsArePlannedPathsNotStraightLines) {

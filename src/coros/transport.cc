@@ -101,6 +101,12 @@ FaultInjection FaultInjection::parse(const std::string& spec) {
   return f;
 }
 
+std::string FaultInjection::spec() const {
+  // {} is the shortest text that reads back as the same double.
+  return fmt::format("drop={},duplicate={},delay={},max_delay_ms={},seed={}", drop, duplicate,
+                     delay, max_delay_ms, seed);
+}
+
 struct UdpTransport::Impl : std::enable_shared_from_this<UdpTransport::Impl> {
   Impl(asio::io_context& io_context, const TransportOptions& options)
       : io(io_context),

@@ -3,6 +3,8 @@
 // the network), and whatever it holds is released at exit by the behavior model.
 #include "icars/home/behaviors.h"
 
+#include "voice_commands.h"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -64,9 +66,14 @@ class Sense final : public Behavior {
     });
     on_release([this, watch] { services().remove_watcher(watch); });
   }
-  void handle_event(const Event& e) override { propagate(e); }
 
  private:
+  // Only its sensors' events are passed on: its siblings' events reach it too, and passing those
+  // on would bounce them between two Sense siblings for ever.
+  template <class S>
+  void sense(const std::shared_ptr<S>& sensor) {
+    listen(sensor, [this](const Event& e) { propagate(e); });
+  }
   void bind_once(const std::shared_ptr<s::Service>& sensor) {
     if (bound_.contains(sensor->id())) return;
     if (bind(sensor)) {
@@ -77,15 +84,15 @@ class Sense final : public Behavior {
   }
   bool bind(const std::shared_ptr<s::Service>& sensor) {
     if (auto o = std::dynamic_pointer_cast<OccupancyService>(sensor)) {
-      listen(o);
+      sense(o);
       if (report_current_ && o->available()) report_occupancy(o);
       return true;
     }
-    if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return listen(m), true;
-    if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) return listen(sp), true;
-    if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return listen(so), true;
-    if (auto n = std::dynamic_pointer_cast<NavigationService>(sensor)) return listen(n), true;
-    if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return listen(u), true;
+    if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return sense(m), true;
+    if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) return sense(sp), true;
+    if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return sense(so), true;
+    if (auto n = std::dynamic_pointer_cast<NavigationService>(sensor)) return sense(n), true;
+    if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return sense(u), true;
     return false;
   }
   // The state now, as the sensor would have reported it when it last changed.
@@ -470,6 +477,10 @@ class MoodControl final : public Behavior {
                [&](auto done) { light->proxy().set_intensity_async(intensity_, done); }, tolerate());
       }
     }
+    if (track_.empty()) {  // a mood of lights alone
+      after(duration_, [this] { succeed(); });
+      return;
+    }
     speaker_ = require<SpeakerService>(of_type("AudioControl"));
     invoke(*speaker_, fmt::format("set_volume({})", volume_),
            [&](auto done) { speaker_->proxy().set_volume_async(volume_, done); }, tolerate());
@@ -526,7 +537,10 @@ class Speak final : public Behavior {
 
 class SetLights final : public Behavior {
  public:
-  explicit SetLights(const Params& p) : rooms_(p.list("rooms")), on_(p.boolean("on")) {}
+  explicit SetLights(const Params& p)
+      : rooms_(p.list("rooms")), on_(p.boolean("on")), intensity_(static_cast<int>(p.integer("intensity"))) {
+    if (intensity_ < 0 || intensity_ > 100) throw ParamError("SetLights: intensity must be 0 (unchanged) to 100");
+  }
 
  protected:
   void entry() override {
@@ -536,6 +550,13 @@ class SetLights final : public Behavior {
       auto light = std::static_pointer_cast<LightService>(service);
       if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;
       ++pending_;
+      if (on_ && intensity_ > 0) {
+        invoke(*light, fmt::format("set_intensity({})", intensity_),
+               [&](auto done) { light->proxy().set_intensity_async(intensity_, done); },
+               [this](std::exception_ptr e) {
+                 if (e) failed_ = true;
+               });
+      }
       invoke(*light, fmt::format("set_power({})", on_), [&](auto done) { light->proxy().set_power_async(on_, done); },
              [this](std::exception_ptr e) {
                if (e) failed_ = true;
@@ -548,6 +569,7 @@ class SetLights final : public Behavior {
  private:
   std::vector<std::string> rooms_;
   bool on_;
+  int intensity_;
   int pending_ = 0;
   bool failed_ = false;
 };
@@ -559,23 +581,23 @@ void register_behaviors(BehaviorRegistry& registry) {
   registry.add<Sense>("Sense", "propagates the events of sensor services",
                       {param("service", T::string, std::nullopt,
                              "service type: OccupancySensor, SpeechSensor, MotionSensor, SoundSensor, Navigation, UserLocator"),
-                       param("room", T::string, "", "only sensors in this room"),
+                       param("room", T::string, "", "only sensors in this room").naming("room"),
                        param("report_current", T::boolean, "false",
                              "occupancy sensors: also report the current state at entry")});
   registry.add<GoToUser>("GoToUser", "finds the user with the robot's camera and drives to them",
-                         {param("user", T::string, "", "who to go to (default: whoever the camera sees first)"),
-                          param("search", T::list, "", "rooms or waypoints to search in order (default: every room)"),
-                          param("robot", T::string, "", "which robot (default: the first)"),
+                         {param("user", T::string, "", "who to go to (default: whoever the camera sees first)").naming("user"),
+                          param("search", T::list, "", "rooms or waypoints to search in order (default: every room)").naming("place"),
+                          param("robot", T::string, "", "which robot (default: the first)").naming("robot"),
                           param("timeout", T::duration, "5min", "fail if not next to the user by then")});
   registry.add<GoTo>("GoTo", "drives the robot to a waypoint, furniture or room",
-                     {param("target", T::string, std::nullopt, "where"),
-                      param("robot", T::string, "", "which robot (default: the first)")});
+                     {param("target", T::string, std::nullopt, "where").naming("place"),
+                      param("robot", T::string, "", "which robot (default: the first)").naming("robot")});
   registry.add<PatrolHome>("PatrolHome", "drives a round of waypoints, reporting motion",
-                           {param("waypoints", T::list, std::nullopt, "the round, in order"),
+                           {param("waypoints", T::list, std::nullopt, "the round, in order").naming("waypoint"),
                             param("rounds", T::integer, "1", "how many rounds"),
-                            param("robot", T::string, "", "which robot (default: the first)")});
+                            param("robot", T::string, "", "which robot (default: the first)").naming("robot")});
   registry.add<VoiceTVControl>("VoiceTVControl", "controls the TV by voice: turn on/off the TV, channel N, volume up/down",
-                               {param("room", T::string, "", "the TV's room (default: any)"),
+                               {param("room", T::string, "", "the TV's room (default: any)").naming("room"),
                                 param("volume_step", T::integer, "5", "volume change per command")});
   registry.add<VoiceAudioControl>("VoiceAudioControl", "controls the speaker by voice: play music, stop, volume up/down",
                                   {param("track", T::string, "relaxing music", "what 'play music' plays"),
@@ -583,16 +605,27 @@ void register_behaviors(BehaviorRegistry& registry) {
   registry.add<LookAtSound>("LookAtSound", "turns the robot towards sounds",
                             {param("min_level_db", T::number, "45", "ignore quieter sounds")});
   registry.add<MoodControl>("MoodControl", "lights off or dimmed, calm music for a while",
-                            {param("rooms", T::list, "", "lights of these rooms (default: all)"),
+                            {param("rooms", T::list, "", "lights of these rooms (default: all)").naming("room"),
                              param("intensity", T::integer, "0", "0: off, else dim to this percent"),
-                             param("track", T::string, "calm music", "what to play"),
+                             param("track", T::string, "calm music", "what to play (\"\": no music, lights only)"),
                              param("volume", T::integer, "20", "at this volume"),
                              param("duration", T::duration, "15min", "for this long")});
   registry.add<Speak>("Speak", "says something through the robot's speaker",
                       {param("text", T::string, std::nullopt, "what to say")});
   registry.add<SetLights>("SetLights", "switches lights on or off",
                           {param("on", T::boolean, std::nullopt, "on or off"),
-                           param("rooms", T::list, "", "lights of these rooms (default: all)")});
+                           param("rooms", T::list, "", "lights of these rooms (default: all)").naming("room"),
+                           param("intensity", T::integer, "0", "switched on, dimmed to this percent (0: unchanged)")});
+  register_voice_commands(registry);
+
+  // What each propagates (policy checks follow the events up a task's tree with these).
+  registry.declare_events("Sense", {event_spec<OccupancyEvent>(), event_spec<MotionEvent>(), event_spec<SpeechEvent>(),
+                                    event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>()});
+  registry.declare_events("GoToUser", {{"ReachedUser", {"user", "x", "y"}}});
+  registry.declare_events("PatrolHome", {{"WaypointReached", {"waypoint", "index"}}, {"MotionDetected", {"room", "device"}}});
+  for (const char* quiet : {"GoTo", "VoiceTVControl", "VoiceAudioControl", "LookAtSound", "MoodControl", "Speak", "SetLights"}) {
+    registry.declare_events(quiet, {});
+  }
 }
 
 BehaviorRegistry behavior_registry() {

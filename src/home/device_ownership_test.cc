@@ -15,6 +15,7 @@
 #include <mutex>
 
 #include "child_process.h"
+#include "scoped_subscription.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/adaptors.h"
 #include "icars/home/services.h"
@@ -246,7 +247,7 @@ TEST_F(Ownership, EventsAreAcceptedOnlyFromTheDevicesOwnLink) {
   auto sofa = sf_.container().find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
   ASSERT_TRUE(sofa);
   std::atomic<int> occupied{0}, left{0};
-  sofa->subscribe([&](const home::OccupancyEvent& e) { ++(e.occupied ? occupied : left); });
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const home::OccupancyEvent& e) { ++(e.occupied ? occupied : left); });
   ASSERT_TRUE(planet_test::wait_until([&] { return living_room.sofa->subscribers() == 1; }));
 
   // The intruder forges "the user left the sofa", then asks the registry something: requests
@@ -317,7 +318,7 @@ TEST_F(Ownership, AForgottenSensorRegistersAgainWhileItsOldServiceIsStillHeld) {
   ASSERT_NE(sofa, nullptr);
   EXPECT_NE(sofa, held);
   std::atomic<int> heard{0};
-  sofa->subscribe([&](const home::OccupancyEvent&) { ++heard; });
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const home::OccupancyEvent&) { ++heard; });
   ASSERT_TRUE(planet_test::wait_until([&] { return living_room->sofa->subscribers() == 1; }));
   living_room->sofa->sit(true);
   ASSERT_TRUE(planet_test::wait_until([&] { return heard == 1; }));
@@ -448,7 +449,7 @@ TEST_F(Restore, ASensorThatChangedWhileAwayIsReread) {
   auto sofa = sf_.container().find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
   std::mutex mutex;
   std::vector<bool> seen;
-  sofa->subscribe([&](const home::OccupancyEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const home::OccupancyEvent& e) {
     std::lock_guard lock(mutex);
     seen.push_back(e.occupied);
   });
@@ -476,7 +477,7 @@ TEST_F(Restore, AnEventThatOvertakesTheReadingIsNotUndone) {
   ASSERT_NE(sofa, nullptr);
   std::mutex heard_mutex;
   std::vector<bool> heard;
-  sofa->subscribe([&](const home::OccupancyEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const home::OccupancyEvent& e) {
     std::lock_guard lock(heard_mutex);
     heard.push_back(e.occupied);
   });

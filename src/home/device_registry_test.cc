@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "child_process.h"
+#include "scoped_subscription.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/adaptors.h"
 #include "icars/home/services.h"
@@ -144,7 +145,7 @@ TEST_F(SF, SpeechSensorTurnsSoundIntoRecognizedSpeech) {
   ASSERT_TRUE(speech);
   EXPECT_TRUE(speech->available());
   std::promise<SpeechEvent> heard;
-  speech->subscribe([&](const SpeechEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     if (e.text == "turn on the TV") heard.set_value(e);
   });
   ASSERT_TRUE(planet_test::wait_until([&] { return devices.mic->subscribers() == 1; }));
@@ -193,7 +194,7 @@ TEST_F(SF, SpeechHeardWhileTheRecognizerIsAwayIsRecognizedInOrderWhenItIsBack) {
   }));
   std::mutex mutex;
   std::vector<std::string> heard;
-  speech->subscribe([&](const SpeechEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     std::lock_guard lock(mutex);
     heard.push_back(e.text);
   });
@@ -229,9 +230,9 @@ TEST_F(SF, ServicesFollowTheirDevicesConnection) {
   ASSERT_TRUE(tv && speech);
   std::atomic<int> went_down{0};
   std::atomic<int> came_back{0};
-  tv->watch([&](const bool& up) { ++(up ? came_back : went_down); });
+  const auto watch = planet_test::watch_scoped(*tv, [&](const bool& up) { ++(up ? came_back : went_down); });
   std::atomic<int> heard{0};
-  speech->subscribe([&](const SpeechEvent&) { ++heard; });
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent&) { ++heard; });
 
   devices.reset();  // the device manager goes away
   ASSERT_TRUE(planet_test::wait_until([&] { return !tv->available() && !speech->available(); }));

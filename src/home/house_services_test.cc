@@ -15,6 +15,7 @@
 #include <mutex>
 
 #include "child_process.h"
+#include "scoped_subscription.h"
 #include "icars/home/adaptors.h"
 #include "icars/home/services.h"
 #include "icars/service/service_framework.h"
@@ -88,7 +89,7 @@ TEST_F(HouseServices, ASimulatedUtteranceBecomesRecognizedSpeech) {
   ASSERT_TRUE(planet_test::wait_until([&] { return speech->available(); }));
   std::promise<SpeechEvent> heard;
   std::atomic<bool> done{false};
-  speech->subscribe([&](const SpeechEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     if (e.text == "turn on the TV" && !done.exchange(true)) heard.set_value(e);
   });
   auto sound = sf_.container().find_first<SoundSensor>(ServiceQuery::of_type("SoundSensor"));
@@ -111,7 +112,7 @@ TEST_F(HouseServices, AServiceCallDrivesTheRobotAlongAPlannedPathInSimulatedTime
   ASSERT_TRUE(nav);
   std::mutex mutex;
   std::vector<home::PositionEvent> seen;
-  nav->subscribe([&](const home::PositionEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*nav, [&](const home::PositionEvent& e) {
     std::lock_guard lock(mutex);
     seen.push_back(e);
   });
@@ -182,7 +183,7 @@ TEST_F(HouseServices, KilledAndRestartedDeviceManagerBringsItsServicesBack) {
   auto tv = sf_.container().find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
   ASSERT_TRUE(speech && tv);
   std::atomic<int> heard{0};
-  speech->subscribe([&](const SpeechEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     if (e.text == "channel 5") ++heard;
   });
   const auto services = sf_.container().all().size();

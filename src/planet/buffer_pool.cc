@@ -1,4 +1,4 @@
-#include "icars/planet/detail/buffer_pool.h"
+#include "buffer_pool.h"
 
 #if defined(__GLIBC__)
 #include <malloc.h>

@@ -9,7 +9,7 @@
 #include <future>
 #include <stdexcept>
 
-#include "icars/planet/detail/buffer_pool.h"
+#include "buffer_pool.h"
 #include "stream_table.h"
 
 namespace icars::planet {
@@ -71,9 +71,13 @@ Communicator::Communicator(CommunicatorOptions options)
   });
   io_thread_id_ = id.get();
   asio::post(*io_, [this] { sweep_deadlines(); });
+  if (const auto& activity = options_.connection.activity) {
+    activity_queue_ = activity->add_queue([io = io_](std::function<void()> marker) { asio::post(*io, std::move(marker)); });
+  }
 }
 
 Communicator::~Communicator() {
+  if (activity_queue_ != 0) options_.connection.activity->remove_queue(activity_queue_);
   // Idempotent calls waiting for their link end now, while the io thread still runs the
   // completions they post; those in flight fail as their connections close below.
   std::vector<Completion> waiting;
@@ -381,8 +385,10 @@ void Communicator::post_bulk(std::unique_lock<std::mutex>& lock, const std::shar
     ++bulk_pending_[c.get()];
     bulk_notifies_.fetch_add(1, std::memory_order_acq_rel);
   }
-  asio::post(*bulk_, [this, c, notify, message = std::move(message)]() mutable {
+  asio::post(*bulk_, [this, c, notify, message = std::move(message),
+                      hold = Activity::Hold(activity().get())]() mutable {
     handle_message(c, message);
+    hold.release();
     detail::give_buffer(std::move(message));
     if (!notify) return;
     std::lock_guard done(bulk_mutex_);

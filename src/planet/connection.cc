@@ -1,6 +1,6 @@
 #include "icars/planet/connection.h"
 
-#include "icars/planet/detail/buffer_pool.h"
+#include "buffer_pool.h"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -20,7 +20,9 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "frame_scheduler.h"
 #include "icars/planet/serializer.h"
+#include "message_assembly.h"
 #include "transport_limits.h"
 
 namespace icars::planet {
@@ -30,10 +32,6 @@ namespace {
 constexpr std::size_t kReadBufferSize = 256 * 1024;
 constexpr std::size_t kMaxBatchBytes = 256 * 1024;  // one gathered write
 constexpr std::size_t kMaxBatchFrames = 64;
-// How far ahead of the frames received a receiver grants credit to each incoming message (1 MiB).
-constexpr std::uint32_t kGrantAheadFrames = 64;
-// Incoming multi-frame messages are assembled in blocks of this size.
-constexpr std::size_t kBlockBytes = 1u << 20;
 // The receive-budget reservation of one DATA_ACK(more): the frames it grants.
 constexpr std::size_t kAckBytes = std::size_t{kAckEvery} * kMaxFramePayload;
 
@@ -83,53 +81,6 @@ void ConnectionOptions::validate() const {
     throw std::invalid_argument("max_incomplete_messages must be at least 16 (protocol minimum)");
   }
 }
-
-struct Connection::Outgoing {
-  std::uint32_t msg_no = 0;
-  std::vector<std::byte> payload;
-  std::size_t offset = 0;  // bytes already framed
-  std::uint32_t next_frame = 0;
-  std::uint32_t credit = kWindowFrames;  // frames that may be sent before the next DATA_ACK
-  bool aborted = false;  // refused by the peer: only an empty final frame is still sent
-  bool in_order = false;  // starts after the earlier in_order messages are written whole
-  SendHandler on_sent;
-  // Since when the message has had frames left and no credit (waiting for a DATA_ACK).
-  std::optional<std::chrono::steady_clock::time_point> starved_since;
-};
-
-struct Connection::Incoming {
-  std::uint32_t msg_no = 0;
-  std::uint32_t next_frame = 0;
-  std::uint32_t granted = kWindowFrames;  // frames the sender may send so far
-  std::uint32_t owed_acks = 0;            // acks held back by the receive budget
-  bool refused = false;
-  std::size_t reserved = 0;  // its share of the total receive budget
-  std::chrono::steady_clock::time_point last_progress;  // last frame, or last credit granted
-  // The message so far, in blocks of kBlockBytes: growing a large message never copies what
-  // arrived before (no reallocation on the io thread).
-  std::vector<std::vector<std::byte>> blocks;
-  std::size_t size = 0;
-
-  void append(std::span<const std::byte> payload, std::vector<std::byte>& spare) {
-    while (!payload.empty()) {
-      if (blocks.empty() || blocks.back().size() == kBlockBytes) {
-        if (blocks.empty() && spare.capacity() > 0) {
-          // The last single-block message's memory, already paged in.
-          blocks.push_back(std::move(spare));
-          spare = {};
-          blocks.back().clear();
-        } else {
-          blocks.push_back(detail::take_buffer(kBlockBytes));
-        }
-      }
-      std::vector<std::byte>& block = blocks.back();
-      const std::size_t n = std::min(payload.size(), kBlockBytes - block.size());
-      block.insert(block.end(), payload.begin(), payload.begin() + static_cast<std::ptrdiff_t>(n));
-      payload = payload.subspan(n);
-      size += n;
-    }
-  }
-};
 
 // TLS over the connection's socket. asio's TLS stream writes one buffer per record, so a batch
 // of frames is copied into one buffer first (`out`).
@@ -193,14 +144,20 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
                      : std::make_shared<detail::TransportLimits>(options.total_receive_budget,
                                                                  kAckBytes)),
       // Not zero-filled: a connection carrying small messages only ever touches the first pages.
-      rbuf_(std::make_unique_for_overwrite<std::byte[]>(kReadBufferSize)) {
+      rbuf_(std::make_unique_for_overwrite<std::byte[]>(kReadBufferSize)),
+      scheduler_(std::make_unique<detail::FrameScheduler>()) {
   options_.validate();
   std::error_code ec;
   socket_.set_option(asio::ip::tcp::no_delay(true), ec);
   const auto remote = socket_.remote_endpoint(ec);
   remote_ip_ = ec ? "unknown" : remote.address().to_string();
   remote_address_ = ec ? "unknown" : fmt::format("{}:{}", remote_ip_, remote.port());
+  if (options_.activity && !ec) {
+    const auto local = socket_.local_endpoint(ec);
+    if (!ec) link_ = options_.activity->join(fmt::format("{}:{}", local.address().to_string(), local.port()), remote_address_);
+  }
   batch_headers_.reserve(kMaxBatchFrames);
+  batch_frames_picked_.reserve(kMaxBatchFrames);
   if (security.tls) {
     tls_ = std::make_unique<Tls>(socket_, *security.tls);
     if (role_ == ConnectionRole::client) {
@@ -219,7 +176,7 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
   }
 }
 
-Connection::~Connection() = default;
+Connection::~Connection() { link_.close(); }
 
 void Connection::start() {
   opened_at_ = std::chrono::steady_clock::now();
@@ -330,7 +287,7 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent, bool 
                             "reading fast enough; retry later",
                             remote_address_, queued_bytes_, options_.send_queue_limit));
   }
-  Outgoing msg;
+  detail::OutgoingMessage msg;
   msg.msg_no = next_msg_no_++;
   if (next_msg_no_ == 0) next_msg_no_ = 1;
   msg.payload = std::move(message);
@@ -338,13 +295,14 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent, bool 
   msg.in_order = in_order;
   queued_bytes_ += msg.payload.size();
   ++stats_.messages_sent;
+  link_.sent();  // before it can reach the receiver
 
   // Fast path: nothing queued and the message fits one frame, so write it straight from this
   // thread; the io thread is not woken at all when the kernel takes the whole frame. Not while
   // the io thread is handling what one read brought: the replies to a batch of requests then
   // leave together in one write after it.
   if (!tls_ && !writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
-      messages_.empty() &&
+      scheduler_->empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
     // Written, but into a link the peer had closed while this process did not run (it stopped
     // between the check above and the write): the message is lost, and the caller is told.
@@ -356,11 +314,11 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent, bool 
     }
     return;
   }
-  messages_.push_back(std::move(msg));
+  scheduler_->add(std::move(msg));
   schedule_write_locked();
 }
 
-bool Connection::try_direct_send_locked(Outgoing& msg) {
+bool Connection::try_direct_send_locked(detail::OutgoingMessage& msg) {
   FrameHeader h;
   h.length = static_cast<std::uint32_t>(kFrameHeaderSize + msg.payload.size());
   h.msg_no = msg.msg_no;
@@ -439,59 +397,18 @@ void Connection::write_batch() {
     bytes += batch_control_.back().size();
     ++batch_frames_;
   }
-  // Then one frame from each message with credit, in turn, so no message monopolises the link.
-  // A multi-frame message is only started while fewer than kMaxInterleavedMessages are in
-  // progress, so the receiver's interleaving limit is never exceeded.
-  std::size_t in_progress = 0;
-  for (const auto& m : messages_) in_progress += m.next_frame > 0 ? 1 : 0;
-  bool progress = true;
-  while (progress && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames) {
-    progress = false;
-    bool in_order_pending = false;  // an earlier in_order message has frames left
-    for (auto it = messages_.begin();
-         it != messages_.end() && bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames;) {
-      Outgoing& m = *it;
-      const bool single_frame = m.payload.size() <= kMaxFramePayload;
-      if (m.in_order) {
-        if (in_order_pending) {
-          ++it;
-          continue;
-        }
-        in_order_pending = true;  // until its final frame goes, below
-      }
-      if ((m.credit == 0 && !m.aborted) ||
-          (m.next_frame == 0 && !single_frame && in_progress >= kMaxInterleavedMessages)) {
-        ++it;
-        continue;
-      }
-      if (m.next_frame == 0 && !single_frame) ++in_progress;
-      const std::size_t n =
-          m.aborted ? 0 : std::min(kMaxFramePayload, m.payload.size() - m.offset);
-      FrameHeader h;
-      h.length = static_cast<std::uint32_t>(kFrameHeaderSize + n);
-      h.msg_no = m.msg_no;
-      h.frame_no = m.next_frame++;
-      h.final = m.aborted || m.offset + n == m.payload.size();
-      h.code = FrameCode::data;
-      batch_headers_.push_back(encode_header(h));
-      batch_.emplace_back(asio::buffer(batch_headers_.back()));
-      if (n != 0) batch_.emplace_back(asio::buffer(m.payload.data() + m.offset, n));
-      m.offset += n;
-      --m.credit;
-      if (m.credit == 0 && !m.starved_since) m.starved_since = std::chrono::steady_clock::now();
-      bytes += h.length;
-      batch_payload_bytes_ += n;
-      ++batch_frames_;
-      progress = true;
-      if (h.final) {
-        if (m.in_order) in_order_pending = false;
-        if (m.next_frame > 1 && !single_frame) --in_progress;
-        (m.aborted ? retired_ : batch_done_).push_back(std::move(m));
-        it = messages_.erase(it);
-      } else {
-        ++it;
-      }
-    }
+  // Then the data frames, as the scheduler picks them: one from each message with credit in turn.
+  batch_frames_picked_.clear();
+  if (bytes < kMaxBatchBytes && batch_frames_ < kMaxBatchFrames) {
+    bytes += scheduler_->next_frames(kMaxBatchBytes - bytes, kMaxBatchFrames - batch_frames_,
+                                     std::chrono::steady_clock::now(), batch_frames_picked_, batch_done_, retired_);
+  }
+  for (const auto& frame : batch_frames_picked_) {
+    batch_headers_.push_back(encode_header(frame.header));
+    batch_.emplace_back(asio::buffer(batch_headers_.back()));
+    if (!frame.payload.empty()) batch_.emplace_back(asio::buffer(frame.payload.data(), frame.payload.size()));
+    batch_payload_bytes_ += frame.payload.size();
+    ++batch_frames_;
   }
   if (batch_.empty()) {
     writing_ = false;
@@ -512,7 +429,7 @@ void Connection::write_batch() {
 }
 
 void Connection::on_written(const std::error_code& ec, std::size_t n) {
-  std::vector<Outgoing> done;
+  std::vector<detail::OutgoingMessage> done;
   {
     std::lock_guard lock(send_mutex_);
     done.swap(batch_done_);
@@ -747,7 +664,7 @@ bool Connection::handle_connect_ack(std::span<const std::byte> payload) {
 bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> payload) {
   auto it = std::find_if(incoming_.begin(), incoming_.end(),
                          [&](const auto& in) { return in->msg_no == h.msg_no; });
-  Incoming* in = it == incoming_.end() ? nullptr : it->get();
+  detail::IncomingMessage* in = it == incoming_.end() ? nullptr : it->get();
   auto protocol_error = [&](const std::string& what) {
     fail(ErrorKind::bad_data, fmt::format("protocol error from {}: {}", describe(), what));
     return false;
@@ -766,13 +683,14 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
         ++stats_.messages_received;
       }
       handler_.on_message(shared_from_this(), payload);
+      link_.handled();
       return state_.load() != State::closed;
     }
     if (incoming_.size() >= options_.max_incomplete_messages) {
       return protocol_error(fmt::format("more than {} interleaved incomplete messages",
                                         options_.max_incomplete_messages));
     }
-    incoming_.push_back(std::make_unique<Incoming>());
+    incoming_.push_back(std::make_unique<detail::IncomingMessage>());
     in = incoming_.back().get();
     in->msg_no = h.msg_no;
     in->last_progress = now;
@@ -792,19 +710,13 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
           h.msg_no, describe(), budget.limit());
       if (auto held = limits_->refusals.admit(remote_ip_)) log_->warn("{}{}", reason, held_back(*held));
       handler_.on_message_refused(shared_from_this(), payload, reason);
+      link_.handled();
       return state_.load() != State::closed;
     }
   } else if (!in) {
     return protocol_error(fmt::format("frame #{} of unknown message #{}", h.frame_no, h.msg_no));
-  } else if (h.frame_no != in->next_frame) {
-    return protocol_error(fmt::format("frame #{} of message #{} out of order (expected #{})",
-                                      h.frame_no, h.msg_no, in->next_frame));
   }
-  if (h.frame_no >= in->granted && !in->refused) {
-    return protocol_error(fmt::format("frame #{} of message #{} exceeds the flow-control window "
-                                      "(granted {} frames)",
-                                      h.frame_no, h.msg_no, in->granted));
-  }
+  if (auto misfit = in->misfit(h)) return protocol_error(*misfit);  // out of order, beyond the window
   ++in->next_frame;
   in->last_progress = now;
   if (in->refused) {  // frames already in flight when we said NO_MORE
@@ -827,6 +739,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     in->size = 0;
     if (h.final) incoming_.erase(it);
     handler_.on_message_refused(shared_from_this(), received, reason);
+    link_.handled();
     if (state_.load() == State::closed) return false;
     release_deferred_acks();
     return true;
@@ -849,6 +762,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     } else {
       handler_.on_large_message(shared_from_this(), std::move(blocks));
     }
+    link_.handled();
     if (state_.load() == State::closed) return false;
     release_deferred_acks();
     return true;
@@ -857,19 +771,16 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
   // Keep the sender kGrantAheadFrames beyond what has arrived (docs/protocol.md 5.3: a receiver
   // may send MORE at any time), so a large message streams at the link's speed rather than
   // waiting for an ack every 64 KiB; the receive budgets still hold acks back.
-  const std::uint32_t wanted = in->next_frame + kGrantAheadFrames;
-  const std::uint32_t promised = in->granted + in->owed_acks * kAckEvery;
-  if (wanted >= promised + kAckEvery) {
-    in->owed_acks += (wanted - promised) / kAckEvery;
+  if (const auto acks = in->acks_to_owe(); acks > 0) {
+    in->owed_acks += acks;
     release_deferred_acks();
   }
   return true;
 }
 
 // What a message may still make the receiver hold: what arrived plus the credit not yet used.
-void Connection::update_reservation(Incoming& in) {
-  const std::size_t now_reserved =
-      in.refused ? 0 : in.size + std::size_t{in.granted - in.next_frame} * kMaxFramePayload;
+void Connection::update_reservation(detail::IncomingMessage& in) {
+  const std::size_t now_reserved = in.holding();
   if (now_reserved > in.reserved) {
     limits_->receive.add(now_reserved - in.reserved);
   } else {
@@ -879,7 +790,7 @@ void Connection::update_reservation(Incoming& in) {
 }
 
 // The message completed, was refused or is dropped with the connection.
-void Connection::forget_incoming(Incoming& in) {
+void Connection::forget_incoming(detail::IncomingMessage& in) {
   limits_->receive.remove(std::exchange(in.reserved, 0));
   limits_->receive.release(id_, in.msg_no);
 }
@@ -892,7 +803,7 @@ void Connection::release_deferred_acks() {
   bool oldest = true;
   bool blocked = false;
   for (const auto& entry : incoming_) {
-    Incoming& in = *entry;
+    detail::IncomingMessage& in = *entry;
     if (in.refused) continue;
     const bool first = oldest;
     oldest = false;
@@ -903,9 +814,7 @@ void Connection::release_deferred_acks() {
         blocked = blocked || !allowed;
       }
       if (!allowed) break;
-      --in.owed_acks;
-      in.granted += kAckEvery;
-      in.last_progress = std::chrono::steady_clock::now();
+      in.grant_one(std::chrono::steady_clock::now());
       update_reservation(in);
       send_data_ack(in.msg_no, AckCode::more);
     }
@@ -952,22 +861,16 @@ bool Connection::handle_data_ack(std::span<const std::byte> payload) {
   bool refused = false;
   {
     std::lock_guard lock(send_mutex_);
-    auto it = std::find_if(messages_.begin(), messages_.end(),
-                           [&](const Outgoing& m) { return m.msg_no == msg_no; });
-    if (it == messages_.end()) return true;  // already fully written
     if (code == static_cast<std::uint32_t>(AckCode::more)) {
-      it->credit += kAckEvery;
-      it->starved_since.reset();
-      schedule_write_locked();
-      return true;
+      if (scheduler_->grant(msg_no)) schedule_write_locked();
+      return true;  // or already fully written
     }
-    if (it->aborted) return true;
+    auto refusal = scheduler_->refuse(msg_no);
+    if (!refusal) return true;  // already fully written, or refused before
     // The message ends with an empty final frame, so the receiver can forget it.
     refused = true;
-    queued_bytes_ -= std::min(queued_bytes_, it->payload.size() - it->offset);
-    refused_handler = std::move(it->on_sent);
-    it->aborted = true;
-    it->starved_since.reset();
+    queued_bytes_ -= std::min(queued_bytes_, refusal->unsent_bytes);
+    refused_handler = std::move(refusal->on_sent);
     schedule_write_locked();
   }
   if (refused) {
@@ -1080,7 +983,7 @@ bool Connection::check_progress(std::chrono::steady_clock::time_point now) {
   }
   for (const auto& in : incoming_) {
     if (!stalled.empty()) break;
-    if (!in->refused && in->granted > in->next_frame && now - in->last_progress >= limit) {
+    if (in->stalled(now, limit)) {
       stalled = fmt::format(
           "message #{} from {} has received no frame for {} ms although {} more were granted",
           in->msg_no, describe(), ms(now - in->last_progress), in->granted - in->next_frame);
@@ -1088,13 +991,10 @@ bool Connection::check_progress(std::chrono::steady_clock::time_point now) {
   }
   if (stalled.empty()) {
     std::lock_guard lock(send_mutex_);
-    for (const auto& m : messages_) {
-      if (m.starved_since && now - *m.starved_since >= limit) {
-        stalled = fmt::format(
-            "message #{} to {} has waited {} ms for flow-control credit (DATA_ACK) after frame #{}",
-            m.msg_no, describe(), ms(now - *m.starved_since), m.next_frame - 1);
-        break;
-      }
+    if (const auto* m = scheduler_->starved(now, limit)) {
+      stalled = fmt::format(
+          "message #{} to {} has waited {} ms for flow-control credit (DATA_ACK) after frame #{}",
+          m->msg_no, describe(), ms(now - *m->starved_since), m->next_frame - 1);
     }
     if (stalled.empty() && write_started_ && now - *write_started_ >= limit) {
       stalled = fmt::format("a write to {} has not completed for {} ms: the peer does not read",
@@ -1120,6 +1020,7 @@ void Connection::finish_close() {
 
 void Connection::fail(ErrorKind kind, const std::string& reason, bool quiet) {
   if (state_.exchange(State::closed) == State::closed) return;
+  link_.close();  // what was on its way over this connection will never be handled
   if (quiet) {
     log_->debug("connection {} closed: {}", id_, reason);
   } else if (kind == ErrorKind::bad_data) {
@@ -1131,12 +1032,11 @@ void Connection::fail(ErrorKind kind, const std::string& reason, bool quiet) {
   {
     std::lock_guard lock(send_mutex_);
     send_open_ = false;
-    for (auto& m : messages_) {
+    for (auto& m : scheduler_->take_all()) {
       ++stats_.messages_dropped;
       if (m.on_sent) dropped.push_back(std::move(m.on_sent));
       retired_.push_back(std::move(m));
     }
-    messages_.clear();
     control_.clear();
     queued_bytes_ = 0;
     if (!writing_) retired_.clear();

@@ -511,6 +511,11 @@ class MalformedInput : public ::testing::Test {
     planet::CommunicatorOptions co;
     co.logger = client_logger;
     co.pun = "good-client";
+    // The good client's link is judged by its calls (each answered within kBound, the link
+    // never re-established), not by its heartbeat timeout: on a loaded 2-core machine (another
+    // test's fifty ASan subscriber processes beside this one) the server can be silent for the
+    // default 5 s without any attack, and the client would drop the link (seen once in CI).
+    co.connection.heartbeat_timeout = std::chrono::milliseconds(20000);
     client_ = std::make_unique<planet::Communicator>(co);
     peer_ = client_->connect("127.0.0.1", port_);
     ASSERT_TRUE(peer_->wait_connected(kBound));

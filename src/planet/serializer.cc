@@ -4,7 +4,7 @@
 
 #include <limits>
 
-#include "icars/planet/detail/buffer_pool.h"
+#include "buffer_pool.h"
 
 namespace icars::planet {
 

@@ -16,7 +16,7 @@
 
 #include "child_process.h"
 #include "icars/planet/communicator.h"
-#include "icars/planet/detail/buffer_pool.h"
+#include "buffer_pool.h"
 #include "icars/planet/detail/byte_order.h"
 #include "icars/planet/proxy.h"
 #include "test_interfaces.h"

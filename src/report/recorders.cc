@@ -68,7 +68,7 @@ void CommandRecorder::add(std::uint32_t request_id, const std::string& path, std
                   fmt::format("command {} {}: {}.{}.{}{}", request_id, event, device, capability, method,
                               error.empty() ? std::string() : fmt::format(" ({})", error)));
   r.with("event", std::string(event))
-      .with("request", static_cast<double>(request_id))
+      .with("request", static_cast<std::int64_t>(request_id))
       .with("device", device)
       .with("capability", capability)
       .with("method", std::string(method));

@@ -43,11 +43,12 @@ std::map<std::string, std::string> RunSummary::device_states() const {
 }
 
 void RunSummary::print(std::FILE* out, const std::string& policy, Time from, Time to,
-                       double wall_seconds, double speed) const {
+                       double wall_seconds, const std::string& clock) const {
   const auto c = counts();
-  std::fprintf(out, "\n=== summary: policy %s, %s to %s (%.0f min simulated in %.1f s, %.0fx) ===\n", policy.c_str(),
-               format_time(from).c_str(), format_time(to).c_str(),
-               static_cast<double>((to - from).count()) / 60000.0, wall_seconds, speed);
+  const double simulated_s = static_cast<double>((to - from).count()) / 1000.0;
+  std::fprintf(out, "\n=== summary: policy %s, %s to %s (%.0f min simulated in %.1f s, %.0fx; %s) ===\n",
+               policy.c_str(), format_time(from).c_str(), format_time(to).c_str(), simulated_s / 60.0, wall_seconds,
+               wall_seconds > 0 ? simulated_s / wall_seconds : 0.0, clock.c_str());
   std::fprintf(out, "states (%d transitions):\n", c.transitions);
   for (const auto& s : states(to)) {
     std::fprintf(out, "  %-14s entered %2d times, %6.1f min\n", s.state.c_str(), s.entered,
@@ -65,10 +66,13 @@ void RunSummary::print(std::FILE* out, const std::string& policy, Time from, Tim
   std::fprintf(out, "robot distance driven: %.1f m\n", c.robot_distance_m);
 }
 
-sim::PlotData RunSummary::plot(const std::string& title, const sim::House& house) const {
+sim::PlotData RunSummary::plot(const std::string& title, const sim::House& house, Time from,
+                               Time to) const {
   std::lock_guard lock(mutex_);
   sim::PlotData data;
   data.title = title;
+  data.run_start = from;
+  data.run_end = to;
   std::map<std::string, sim::PlotTrack> robots, users;
   sim::Point robot_at{0, 0};
   if (!house.robots.empty()) robot_at = sim::Point{house.robots.front().start.x, house.robots.front().start.y};
@@ -89,6 +93,18 @@ sim::PlotData RunSummary::plot(const std::string& title, const sim::House& house
       data.marks.push_back(std::move(mark));
     }
   }
+  // Where the house starts each robot and user, unless the trace placed them by then.
+  const auto begin_at_start = [from](sim::PlotTrack& track, const std::string& name,
+                                      sim::Point start) {
+    track.name = name;
+    if (track.points.empty() || track.points.front().first > from) {
+      track.points.insert(track.points.begin(), std::pair{from, start});
+    }
+  };
+  for (const auto& spec : house.robots) {
+    begin_at_start(robots[spec.id], spec.id, spec.start.position());
+  }
+  for (const auto& spec : house.users) begin_at_start(users[spec.id], spec.id, spec.start);
   for (auto& [name, track] : robots) data.robots.push_back(std::move(track));
   for (auto& [name, track] : users) data.users.push_back(std::move(track));
   return data;

@@ -5,6 +5,9 @@
 
 #include <cstdio>
 #include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
 
 #include "icars/report/run_summary.h"
 
@@ -66,10 +69,11 @@ TEST(RunSummary, CountsFromTypedFields) {
   char buffer[4096] = {};
   std::FILE* out = fmemopen(buffer, sizeof buffer - 1, "w");
   ASSERT_NE(out, nullptr);
-  summary.print(out, "paper_home", at_time(0, 18, 0), at_time(0, 20, 30), 6.0, 1500);
+  summary.print(out, "paper_home", at_time(0, 18, 0), at_time(0, 20, 30), 6.0, "lock-step at 1500x");
   std::fclose(out);
   const std::string printed = buffer;
-  EXPECT_NE(printed.find("=== summary: policy paper_home, d0 18:00:00 to d0 20:30:00 (150 min simulated"),
+  EXPECT_NE(printed.find("=== summary: policy paper_home, d0 18:00:00 to d0 20:30:00 (150 min simulated in 6.0 s, "
+                         "1500x; lock-step at 1500x)"),
             std::string::npos) << printed;
   EXPECT_NE(printed.find("robot distance driven: 5.0 m"), std::string::npos) << printed;
   EXPECT_NE(printed.find("service calls: 1 (1 failed); voice commands heard: 1"), std::string::npos) << printed;
@@ -84,7 +88,7 @@ TEST(RunSummary, PlotKeepsTracksAndMarksTransitionsWhereTheRobotWas) {
   trace.record(make(at_time(0, 18, 10), "transition").with("to", "RestMode"));
   trace.record(make(at_time(0, 18, 11), "user").with("user", "u1"));  // no position: skipped
   sim::House house;
-  const auto data = summary.plot("run", house);
+  const auto data = summary.plot("run", house, at_time(0, 18, 0), at_time(0, 18, 20));
   ASSERT_EQ(data.robots.size(), 1u);
   ASSERT_EQ(data.users.size(), 1u);
   EXPECT_EQ(data.users.front().points.size(), 1u);
@@ -92,6 +96,46 @@ TEST(RunSummary, PlotKeepsTracksAndMarksTransitionsWhereTheRobotWas) {
   EXPECT_EQ(data.marks.front().label, "18:10 RestMode");
   EXPECT_DOUBLE_EQ(data.marks.front().at.x, 1.0);
   EXPECT_DOUBLE_EQ(data.marks.front().at.y, 2.0);
+}
+
+TEST(RunSummary, PlotBeginsTracksAtTheRunsStartWhereTheHouseStartsThem) {
+  RunSummary summary(/*keep_plot=*/true);
+  behavior::Trace trace;
+  trace.add_sink(summary.sink());
+  // The robot's first reported position is where it was at 18:05, away from its dock; the
+  // user was not reported before 18:10; the second robot was reported at the run's start.
+  trace.record(make(at_time(0, 18, 0), "robot").with("robot", "r2").with("x", 1.0).with("y", 1.0));
+  trace.record(make(at_time(0, 18, 5), "robot").with("robot", "r1").with("x", 3.0).with("y", 2.5));
+  trace.record(make(at_time(0, 18, 10), "user").with("user", "u1").with("x", 4.0).with("y", 4.0));
+  sim::House house;
+  for (const auto& [id, x, y] : {std::tuple{"r1", 5.0, 2.4}, std::tuple{"r2", 1.5, 1.5},
+                                 std::tuple{"r3", 8.0, 1.0}}) {  // r3 never moved
+    sim::RobotSpec robot;
+    robot.id = id;
+    robot.start = {x, y, 0.0};
+    house.robots.push_back(robot);
+  }
+  sim::UserSpec user;
+  user.id = "u1";
+  user.start = {0.6, 2.0};
+  house.users.push_back(user);
+  const Time from = at_time(0, 18, 0);
+  const Time to = at_time(0, 20, 30);
+  const auto data = summary.plot("run", house, from, to);
+
+  // The plot's subtitle shows the run, not the span of the movements.
+  EXPECT_EQ(data.run_start, from);
+  EXPECT_EQ(data.run_end, to);
+  using Points = std::vector<std::pair<Time, sim::Point>>;
+  ASSERT_EQ(data.robots.size(), 3u);
+  EXPECT_EQ(data.robots[0].name, "r1");
+  EXPECT_EQ(data.robots[0].points, (Points{{from, {5.0, 2.4}}, {at_time(0, 18, 5), {3.0, 2.5}}}));
+  EXPECT_EQ(data.robots[1].name, "r2");
+  EXPECT_EQ(data.robots[1].points, (Points{{from, {1.0, 1.0}}}));  // the trace knew better
+  EXPECT_EQ(data.robots[2].name, "r3");
+  EXPECT_EQ(data.robots[2].points, (Points{{from, {8.0, 1.0}}}));
+  ASSERT_EQ(data.users.size(), 1u);
+  EXPECT_EQ(data.users[0].points, (Points{{from, {0.6, 2.0}}, {at_time(0, 18, 10), {4.0, 4.0}}}));
 }
 
 }  // namespace

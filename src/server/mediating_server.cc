@@ -38,7 +38,7 @@ void MediatingServer::use_clock(Clock& clock) {
 control::ParsedPolicy MediatingServer::run_policy(const std::string& name) {
   if (!manager_) {
     if (!clock_) throw std::logic_error("the mediating server has no clock: call use_clock() first");
-    runtime_ = std::make_unique<behavior::Runtime>(*clock_);
+    runtime_ = std::make_unique<behavior::Runtime>(*clock_, options_.planet.connection.activity);
     environment_ = std::make_unique<behavior::Environment>(
         behavior::Environment{*runtime_, framework_->container(), trace_});
     manager_ = std::make_unique<control::CollaborationManager>(repository_, options_.behaviors, *environment_);

@@ -11,6 +11,20 @@
 
 namespace icars::service {
 
+std::vector<std::string> AdaptorFactory::interface_ids() const {
+  std::vector<std::string> ids;
+  ids.reserve(makers_.size());
+  for (const auto& [id, make] : makers_) ids.push_back(id);
+  return ids;
+}
+
+void AdaptorFactory::merge(AdaptorFactory&& other) {
+  for (const auto& [id, make] : other.makers_) {
+    if (makers_.contains(id)) throw std::invalid_argument("interface " + id + " already has an adaptor");
+  }
+  makers_.merge(other.makers_);
+}
+
 std::shared_ptr<Adaptor> AdaptorFactory::make(const df::DeviceInfo& device,
                                               const df::CapabilityInfo& capability) const {
   if (auto it = makers_.find(capability.interface_id); it != makers_.end()) {

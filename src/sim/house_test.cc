@@ -222,8 +222,10 @@ TEST(House, EveryBrokenFixtureGivesItsDocumentedError) {
       EXPECT_NE(e.problem().find(expected.message), std::string::npos)
           << name << ": got \"" << e.problem() << "\", expected \"" << expected.message << "\"";
       EXPECT_EQ(e.source(), entry.path().string());
-      const auto prefix = entry.path().string() + ":" + std::to_string(expected.line) + ": ";
-      EXPECT_EQ(std::string(e.what()).rfind(prefix, 0), 0u) << e.what();
+      // "file:line: " or, for malformed XML, "file:line:column: ".
+      const auto where = e.column() == 0 ? std::to_string(expected.line)
+                                         : std::to_string(expected.line) + ":" + std::to_string(e.column());
+      EXPECT_EQ(std::string(e.what()).rfind(entry.path().string() + ":" + where + ": ", 0), 0u) << e.what();
     }
   }
   for (const char* required :

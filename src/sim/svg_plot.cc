@@ -8,9 +8,12 @@
 #include <fstream>
 #include <iterator>
 #include <limits>
+#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string_view>
+
+#include "icars/sim/planner.h"
 
 namespace icars::sim {
 
@@ -74,6 +77,109 @@ std::string escape(std::string_view text) {
 double text_width(std::string_view text, double font_size) {
   return 0.6 * font_size * static_cast<double>(text.size());
 }
+
+// A label's box in SVG pixels, halo included: from a font size above its baseline to 0.3 of one
+// below (descenders), as wide as text_width() estimates.
+struct Box {
+  double left, top, right, bottom;
+  bool overlaps(const Box& o) const {
+    return left < o.right && o.left < right && top < o.bottom && o.top < bottom;
+  }
+};
+
+Box label_box(double x, double baseline, double size, std::string_view label) {
+  constexpr double halo = 1.25;  // half the halo's stroke width
+  return {x - halo, baseline - size - halo, x + text_width(label, size) + halo,
+          baseline + 0.3 * size + halo};
+}
+
+// The labels placed so far, so that a later one keeps clear of them.
+class LabelLayout {
+ public:
+  // The baseline for a label at x preferred on `baseline`: that one when the label's box
+  // covers no placed label, else the nearest clear row stepping `direction` (-1 up, +1 down;
+  // rows above the document's top are skipped), then the other way; `baseline` itself when no
+  // row within kMaxRows is clear (an overprint rather than a label far from its point). The
+  // label is then placed there.
+  double place(double x, double baseline, double size, std::string_view label, int direction) {
+    constexpr int kMaxRows = 40;
+    const Box at = label_box(x, baseline, size, label);
+    const double step = at.bottom - at.top;
+    const auto clear = [&](const Box& box) {
+      return box.top >= 0 && std::none_of(placed_.begin(), placed_.end(),
+                                           [&](const Box& b) { return b.overlaps(box); });
+    };
+    double chosen = baseline;
+    bool found = false;
+    for (const int sign : {direction, -direction}) {
+      for (int row = sign == direction ? 0 : 1; row <= kMaxRows && !found; ++row) {
+        const double candidate = baseline + sign * row * step;
+        if (clear(label_box(x, candidate, size, label))) {
+          chosen = candidate;
+          found = true;
+        }
+      }
+    }
+    placed_.push_back(label_box(x, chosen, size, label));
+    return chosen;
+  }
+
+ private:
+  std::vector<Box> placed_;
+};
+
+// Joins a track's positions the way its body moves between them: straight where a body of its
+// radius fits, else along the path plan_path() finds, so that the line never cuts through a
+// wall between positions that are far apart (a user is reported only when their room, posture
+// or furniture changes). One grid per radius, made when first needed.
+class TrackRouter {
+ public:
+  explicit TrackRouter(const House& house) : house_(house) {}
+
+  std::vector<Point> route(const PlotTrack& track, double radius) {
+    std::vector<Point> line;
+    for (const auto& [time, p] : track.points) {
+      if (!line.empty() && distance(line.back(), p) > kSame) {
+        const OccupancyGrid& g = grid(radius);
+        if (!g.segment_free(line.back(), p)) {
+          for (const Point q : detour(g, line.back(), p)) line.push_back(q);
+        }
+      }
+      line.push_back(p);
+    }
+    return line;
+  }
+
+ private:
+  static constexpr double kSame = 1e-9;  // m: one point
+  // How far a position may lie inside an obstacle (a user sitting on a bed) and still be
+  // joined to the free space around it.
+  static constexpr double kSnapDistance = 2.0;
+
+  const OccupancyGrid& grid(double radius) {
+    return grids_.try_emplace(radius, house_, radius).first->second;
+  }
+
+  // The points strictly between a and b of the planned way from a to b; none (a straight
+  // line) when there is no way, as in a house that does not fit the track.
+  static std::vector<Point> detour(const OccupancyGrid& g, Point a, Point b) {
+    const auto from = g.nearest_free(a, kSnapDistance);
+    if (!from) return {};
+    const auto to = g.nearest_free(b, kSnapDistance, *from);
+    if (!to) return {};
+    auto path = plan_path(g, *from, *to);
+    if (!path) return {};
+    std::vector<Point> via;
+    for (const Point q : *path) {
+      const Point last = via.empty() ? a : via.back();
+      if (distance(q, last) > kSame && distance(q, b) > kSame) via.push_back(q);
+    }
+    return via;
+  }
+
+  const House& house_;
+  std::map<double, OccupancyGrid> grids_;
+};
 
 // House metres to SVG pixels: x to the right, y flipped so that up in the house is up.
 struct Frame {
@@ -197,14 +303,15 @@ void draw_house(std::string& out, const House& house, const Frame& f) {
   out.append("</g>\n");
 }
 
-// A robot's track is a solid line; a user's a dashed line with a dot at every position.
-void draw_track(std::string& out, const PlotTrack& track, std::string_view colour, bool robot,
-                const Frame& f) {
+// A robot's track is a solid line; a user's a dashed line with a dot at every position. `line`
+// is the track's positions joined as TrackRouter joins them.
+void draw_track(std::string& out, const PlotTrack& track, const std::vector<Point>& line,
+                std::string_view colour, bool robot, const Frame& f, LabelLayout& labels) {
   if (track.points.empty()) return;
   const std::string_view kind = robot ? "robot-track" : "user-track";
   put(out, "<g class=\"{}-group\" data-name=\"{}\">\n", kind, escape(track.name));
   std::string points;
-  for (const auto& [time, p] : track.points) {
+  for (const Point p : line) {
     if (!points.empty()) points.push_back(' ');
     put(points, "{:.1f},{:.1f}", f.x(p.x), f.y(p.y));
   }
@@ -229,27 +336,40 @@ void draw_track(std::string& out, const PlotTrack& track, std::string_view colou
       "<circle class=\"start\" cx=\"{:.1f}\" cy=\"{:.1f}\" r=\"5\" fill=\"#ffffff\" "
       "stroke=\"{}\" stroke-width=\"2\"/>\n",
       x0, y0, colour);
-  text(out, x0 + 7, y0 - 7, 10, colour, fmt::format("{} {}", track.name, format_time(t0)),
-       " class=\"time\"");
+  constexpr double size = 10;
+  const std::string start_label = fmt::format("{} {}", track.name, format_time(t0));
+  text(out, x0 + 7, labels.place(x0 + 7, y0 - 7, size, start_label, -1), size, colour,
+       start_label, " class=\"time\"");
   if (track.points.size() > 1) {
     put(out,
         "<rect class=\"end\" x=\"{:.1f}\" y=\"{:.1f}\" width=\"8\" height=\"8\" fill=\"{}\"/>\n",
         x1 - 4, y1 - 4, colour);
-    text(out, x1 + 7, y1 + 14, 10, colour, format_time(t1), " class=\"time\"");
+    const std::string end_label = format_time(t1);
+    text(out, x1 + 7, labels.place(x1 + 7, y1 + 14, size, end_label, +1), size, colour, end_label,
+         " class=\"time\"");
   }
   out.append("</g>\n");
 }
 
-void draw_mark(std::string& out, const PlotMark& m, const Frame& f) {
+void draw_mark(std::string& out, const PlotMark& m, const Frame& f, LabelLayout& labels) {
+  constexpr double size = 11;
   const double x = f.x(m.at.x);
   const double y = f.y(m.at.y);
+  const double preferred = y - 14;
+  const double baseline = labels.place(x + 6, preferred, size, m.label, -1);
   put(out,
       "<g class=\"mark\"><title>{} at {}</title>\n"
       "<line x1=\"{:.1f}\" y1=\"{:.1f}\" x2=\"{:.1f}\" y2=\"{:.1f}\" stroke=\"#000000\" "
       "stroke-width=\"1.2\"/>\n"
       "<circle cx=\"{:.1f}\" cy=\"{:.1f}\" r=\"4\" fill=\"{}\" stroke=\"#000000\"/>\n",
       escape(m.label), format_time(m.time), x, y, x, y - 16, x, y - 16, kMarkColour);
-  text(out, x + 6, y - 14, 11, "#000000", m.label, " font-weight=\"bold\"");
+  if (baseline != preferred) {  // moved clear of another label: a leader from the pin
+    put(out,
+        "<line class=\"leader\" x1=\"{:.1f}\" y1=\"{:.1f}\" x2=\"{:.1f}\" y2=\"{:.1f}\" "
+        "stroke=\"#000000\" stroke-width=\"0.6\"/>\n",
+        x, y - 16, x + 5, baseline - size / 3);
+  }
+  text(out, x + 6, baseline, size, "#000000", m.label, " font-weight=\"bold\"");
   out.append("</g>\n");
 }
 
@@ -376,7 +496,7 @@ std::string render_svg(const House& house, const PlotData& data) {
   put(out, "<rect width=\"{:.0f}\" height=\"{:.0f}\" fill=\"#ffffff\"/>\n", width, height);
   text(out, kMargin, 28, 18, "#000000", title, " class=\"title\" font-weight=\"bold\"");
 
-  // The subtitle: the house and the time the data spans.
+  // The subtitle: the house and the run's span, or the time the data spans.
   std::optional<std::pair<Time, Time>> span;
   const auto extend = [&](Time t) {
     span = span ? std::pair{std::min(span->first, t), std::max(span->second, t)} : std::pair{t, t};
@@ -387,6 +507,11 @@ std::string render_svg(const House& house, const PlotData& data) {
     }
   }
   for (const auto& m : data.marks) extend(m.time);
+  if (data.run_start || data.run_end) {
+    const Time start = data.run_start.value_or(span ? span->first : *data.run_end);
+    const Time end = data.run_end.value_or(span ? span->second : *data.run_start);
+    span = std::pair{start, end};
+  }
   std::string subtitle = fmt::format("house {}", house.name);
   if (span) {
     subtitle = fmt::format("{}, {} to {}", subtitle, format_time(span->first),
@@ -395,16 +520,24 @@ std::string render_svg(const House& house, const PlotData& data) {
   text(out, kMargin, 48, 11, "#555555", subtitle, " class=\"subtitle\"");
 
   draw_house(out, house, f);
+  TrackRouter router(house);
+  LabelLayout labels;
   out.append("<g class=\"users\">\n");
   for (std::size_t i = 0; i < data.users.size(); ++i) {
-    draw_track(out, data.users[i], kUserColours[i % std::size(kUserColours)], false, f);
+    const auto& track = data.users[i];
+    const auto* spec = house.user(track.name);
+    const auto line = router.route(track, spec ? spec->radius : UserSpec{}.radius);
+    draw_track(out, track, line, kUserColours[i % std::size(kUserColours)], false, f, labels);
   }
   out.append("</g>\n<g class=\"robots\">\n");
   for (std::size_t i = 0; i < data.robots.size(); ++i) {
-    draw_track(out, data.robots[i], kRobotColours[i % std::size(kRobotColours)], true, f);
+    const auto& track = data.robots[i];
+    const auto* spec = house.robot(track.name);
+    const auto line = router.route(track, spec ? spec->radius : RobotSpec{}.radius);
+    draw_track(out, track, line, kRobotColours[i % std::size(kRobotColours)], true, f, labels);
   }
   out.append("</g>\n<g class=\"marks\">\n");
-  for (const auto& m : data.marks) draw_mark(out, m, f);
+  for (const auto& m : data.marks) draw_mark(out, m, f, labels);
   out.append("</g>\n<g class=\"legend\">\n");
   for (std::size_t i = 0; i < entries.size(); ++i) {
     const auto [ex, ey] = at[i];

@@ -12,6 +12,7 @@
 
 #include "cpp_generator.h"
 #include "diagnostic.h"
+#include "events_doc.h"
 #include "parser.h"
 
 namespace icars::planet::idl {
@@ -31,10 +32,12 @@ std::string escape_for_make(const std::string& path) {
 }
 
 // Compiles one input; adds the files it wrote (or left unchanged) and read to the lists.
-void compile_one(const fs::path& input, const DriverOptions& options,
-                 std::vector<std::string>& outputs, std::vector<std::string>& inputs_read) {
+Program compile_one(const fs::path& input, const DriverOptions& options,
+                    std::vector<std::string>& outputs, std::vector<std::string>& inputs_read) {
   FileSystemReader reader;
-  const Program program = parse_program(input, ParseOptions{options.import_dirs}, reader);
+  Program program = parse_program(input, ParseOptions{options.import_dirs}, reader);
+  for (const auto& file : program.files) inputs_read.push_back(file->path);
+  if (options.output_dir.empty()) return program;
   const GeneratedCpp cpp = generate_cpp(*program.main);
   const fs::path header = options.output_dir / cpp.header_name;
   const fs::path source = options.output_dir / cpp.source_name;
@@ -42,7 +45,15 @@ void compile_one(const fs::path& input, const DriverOptions& options,
   write_if_changed(source, cpp.source);
   outputs.push_back(header.string());
   outputs.push_back(source.string());
-  for (const auto& file : program.files) inputs_read.push_back(file->path);
+  return program;
+}
+
+void write_events_doc(const DriverOptions& options, const std::vector<Program>& programs,
+                      std::vector<std::string>& outputs) {
+  std::vector<const SourceFile*> mains;
+  for (const Program& p : programs) mains.push_back(p.main);
+  write_if_changed(options.events_doc, generate_events_doc(mains));
+  outputs.push_back(options.events_doc.string());
 }
 
 void write_depfile(const DriverOptions& options, const std::vector<std::string>& outputs,
@@ -96,16 +107,25 @@ std::string make_dependency_rule(const std::vector<std::string>& targets,
 int run_driver(const DriverOptions& options, std::ostream& errors) {
   std::vector<std::string> outputs;
   std::vector<std::string> inputs_read;
+  std::vector<Program> programs;
   int status = 0;
   for (const fs::path& input : options.inputs) {
     try {
-      compile_one(input, options, outputs, inputs_read);
+      programs.push_back(compile_one(input, options, outputs, inputs_read));
     } catch (const CompileError& e) {
       errors << e.what() << '\n';
       status = 1;
     } catch (const std::exception& e) {
       errors << fmt::format("{}: error: {}, expected a writable output directory\n", input.string(),
                             e.what());
+      status = 1;
+    }
+  }
+  if (status == 0 && !options.events_doc.empty()) {
+    try {
+      write_events_doc(options, programs, outputs);
+    } catch (const std::exception& e) {
+      errors << fmt::format("planet-idl: error: {}\n", e.what());
       status = 1;
     }
   }

@@ -150,7 +150,15 @@ class Behavior : public Owner {
   // without namespace ("OccupancyEvent", "SpeechEvent"), until exit.
   template <class S>
   void listen(const std::shared_ptr<S>& sensor) {
-    auto deliver = guard([this](const Event& e) { receive(e); });
+    listen(sensor, [this](const Event& e) { receive(e); });
+  }
+  // Every event `sensor` publishes goes to `on_event` (on the runtime, while this activation
+  // lasts) instead of handle_event, which then sees only its siblings' and children's events.
+  template <class S, class F>
+  void listen(const std::shared_ptr<S>& sensor, F on_event) {
+    auto deliver = guard([this, on_event = std::move(on_event)](const Event& e) mutable {
+      if (running()) on_event(e);
+    });
     const auto id = sensor->subscribe([deliver](const auto& typed) mutable {
       deliver(rename(planet::to_event(typed)));
     });

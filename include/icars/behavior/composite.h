@@ -1,6 +1,7 @@
 // Composite behaviors (ICARS paper 4.3.2, Fig. 12): the inner nodes of a behavior tree.
 //
 // - SequentialBehavior runs its children one after another, in order.
+// - FallbackBehavior tries its children one after another until one succeeds.
 // - ConcurrentBehavior starts all its children at once; its Completion says when it is done.
 // - FilterBehavior, InterpretBehavior and AggregateBehavior are concurrent composites that
 //   process the events their children propagate on the way up (paper: filtering,
@@ -38,6 +39,18 @@ class SequentialBehavior : public Behavior {
   Options options_;
   std::size_t index_ = 0;
   int round_ = 0;
+};
+
+// Runs its children one after another until one succeeds (BehaviorTree.CPP's Fallback, or
+// Selector): succeeds with the first child that succeeds, tries the next when one fails, and
+// fails when every child failed ("every child failed; last: ..."). With no children it fails.
+class FallbackBehavior : public Behavior {
+ protected:
+  void entry() override;
+  void child_done(Behavior& child) override;
+
+ private:
+  std::size_t index_ = 0;
 };
 
 // When a concurrent composite completes:

@@ -42,6 +42,7 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <variant>
 #include <vector>
 
@@ -90,6 +91,9 @@ class Condition {
   // The names it reads (including event, time, day and the argument of exists, never function
   // names), in order of first use, each once.
   std::vector<std::string> identifiers() const;
+  // The names compared for equality (== or !=) with a string literal, as (name, literal), in
+  // order: `furniture == 'bed'` gives ("furniture", "bed"), `event != 'X'` ("event", "X").
+  std::vector<std::pair<std::string, std::string>> compared_strings() const;
 
  private:
   explicit Condition(std::shared_ptr<const detail::ConditionProgram> program);

@@ -3,11 +3,13 @@
 // unknown names, missing values, values of the wrong kind — before anything runs.
 #pragma once
 
+#include <functional>
 #include <map>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "icars/clock/time.h"
@@ -22,6 +24,28 @@ struct ParamSpec {
   ParamType type = ParamType::string;
   std::optional<std::string> default_value;  // nullopt: required
   std::string doc;
+  // What the value (each item of a list) names: "" free text; a kind of name of the world
+  // ("room", "waypoint", "place", "furniture", "device", "user", "robot"), checked against a
+  // house before the policy runs; or "event", an event type the behavior propagates.
+  std::string names;
+  // A value with structure (a command table): `check` throws ParamError for a value the type
+  // cannot use, before the policy runs; `names_in` lists the (kind, name) pairs it names, which
+  // are checked against a house like `names`.
+  std::function<void(std::string_view value)> check;
+  std::function<std::vector<std::pair<std::string, std::string>>(std::string_view value)> names_in;
+
+  ParamSpec naming(std::string kind) && {
+    names = std::move(kind);
+    return std::move(*this);
+  }
+  ParamSpec checked_by(std::function<void(std::string_view)> fn) && {
+    check = std::move(fn);
+    return std::move(*this);
+  }
+  ParamSpec naming_in(std::function<std::vector<std::pair<std::string, std::string>>(std::string_view)> fn) && {
+    names_in = std::move(fn);
+    return std::move(*this);
+  }
 };
 
 // ParamSpec builders: param("track", ParamType::string, "calm", "what to play").

@@ -6,11 +6,13 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "icars/behavior/behavior.h"
 #include "icars/behavior/params.h"
+#include "icars/behavior/vocabulary.h"
 
 namespace icars::behavior {
 
@@ -22,6 +24,8 @@ class BehaviorRegistry {
     std::string doc;
     std::vector<ParamSpec> params;
     Factory factory;
+    // The events it propagates; nullopt when not declared (a policy check then assumes any).
+    std::optional<std::vector<EventSpec>> emits;
   };
 
   // Registers a behavior type; throws std::invalid_argument when the type is taken.
@@ -33,8 +37,14 @@ class BehaviorRegistry {
         [](const Params& p) -> std::unique_ptr<Behavior> { return std::make_unique<B>(p); });
   }
 
+  // Declares the events a registered type propagates (besides those of parameters naming an
+  // "event"); throws std::invalid_argument for an unknown type.
+  void declare_events(std::string_view type, std::vector<EventSpec> events);
+
   const Entry* find(std::string_view type) const;
   std::vector<std::string> types() const;
+  // Adds every type of `other`; throws std::invalid_argument, adding none, if one is taken.
+  void merge(BehaviorRegistry&& other);
 
   // The values of `given` checked against the type's parameters (unknown names, missing required
   // values, values of the wrong kind) with defaults filled in. Throws ParamError.

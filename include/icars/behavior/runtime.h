@@ -16,8 +16,10 @@
 #include <cstdint>
 #include <functional>
 #include <future>
+#include <memory>
 #include <thread>
 
+#include "icars/clock/activity.h"
 #include "icars/clock/clock.h"
 
 namespace icars::behavior {
@@ -25,8 +27,10 @@ namespace icars::behavior {
 class Runtime {
  public:
   // Starts the runtime thread. Timers follow `clock` (a simulated clock driven by hand in
-  // tests, by a RealTimeDriver in a house, at 1x against the wall clock in production).
-  explicit Runtime(Clock& clock);
+  // tests, by a RealTimeDriver or a LockStepDriver in a house, the wall clock in production).
+  // With an `activity` (lock-step, icars/clock/activity.h) every handler posted is work until
+  // it has run.
+  explicit Runtime(Clock& clock, std::shared_ptr<Activity> activity = nullptr);
   ~Runtime();  // stops the thread; handlers still queued are dropped
   Runtime(const Runtime&) = delete;
   Runtime& operator=(const Runtime&) = delete;
@@ -66,6 +70,7 @@ class Runtime {
   struct TimerTable;
 
   Clock& clock_;
+  std::shared_ptr<Activity> activity_;
   asio::io_context io_;
   asio::executor_work_guard<asio::io_context::executor_type> work_;
   std::atomic<std::int64_t> outstanding_{0};

@@ -1,7 +1,8 @@
 // The trace of a running application: what happened, when (simulated time), and who did it —
 // state transitions, tasks and behaviors starting and ending, service calls, events, device
 // effects, robot and user positions. Sinks turn it into a readable timeline, a JSON-lines file
-// for tools and tests, or an in-memory log.
+// for tools and tests (docs/trace.md, checked against docs/trace.schema.json), or an in-memory
+// log.
 #pragma once
 
 #include <chrono>
@@ -19,27 +20,50 @@
 
 #include "icars/clock/time.h"
 
+namespace icars::planet {
+class Value;
+class Properties;
+}  // namespace icars::planet
+
 namespace icars::behavior {
 
-using TraceValue = std::variant<std::string, double, bool>;
+// A detail of a record: integers stay integers (a request id, an event's `time_ms`).
+using TraceValue = std::variant<std::string, double, bool, std::int64_t>;
+using TraceFields = std::vector<std::pair<std::string, TraceValue>>;
+
+// A PLANET value as a condition sees it (condition.h): bool; byte, short, int and long as an
+// integer; float and double as a double; string. Other types (binary, sequences, valued
+// types) have no trace value: nullopt.
+std::optional<TraceValue> trace_value(const planet::Value& value);
 
 struct TraceRecord {
   Time time{0};
   std::string kind;    // "transition", "task", "behavior", "call", "event", "effect", "robot", ...
   std::string source;  // who: a state, a behavior's path ("RestMode/VoiceControl/GoToUser"), a device
   std::string text;    // one readable line
-  std::vector<std::pair<std::string, TraceValue>> fields;  // details for machines
+  TraceFields fields;  // details for machines, named by the code that records them
+  // The properties of the event an "event" record is about, apart from `fields`, so that an
+  // event's own names (a SpeechEvent's `text`, a property named `task`) clash with nothing.
+  std::optional<TraceFields> properties;
 
+  // `name` is none of the record's own keys: t, time, kind, source, text, properties.
   TraceRecord& with(std::string name, TraceValue value) {
     fields.emplace_back(std::move(name), std::move(value));
     return *this;
   }
+  // Sets `properties` to every property that has a trace value (trace_value), in order.
+  TraceRecord& with_properties(const planet::Properties& event);
+
   // The field's value as text ("" when absent).
   std::string field(std::string_view name) const;
-  // The field's value when it is a number / a flag (nullopt when absent or of another kind).
+  // The field's value when it is a number (a double or an integer) / a flag (nullopt when
+  // absent or of another kind).
   std::optional<double> number(std::string_view name) const;
   std::optional<bool> flag(std::string_view name) const;
-  // {"t":..., "time":"d0 18:10:00", "kind":..., "source":..., "text":..., <fields>}
+  // The event property's value (nullopt when absent or the record has no properties).
+  std::optional<TraceValue> property(std::string_view name) const;
+  // {"t":..., "time":"d0 18:10:00", "kind":..., "source":..., "text":..., <fields>,
+  //  "properties":{...} when the record has properties}; docs/trace.md.
   std::string to_json() const;
 };
 

@@ -19,6 +19,8 @@
 #include <utility>
 
 #include "icars/clock/clock.h"
+#include "icars/clock/driver_thread.h"
+#include "icars/clock/timer_queue.h"
 
 namespace icars {
 
@@ -49,18 +51,19 @@ class SimClock final : public Clock {
   // that event's time and later events still pending.
   void advance_to(Time t);
   void advance_by(Time d);
+  // Runs only the next event, if it is due at or before `limit`, with now() at its time
+  // (LockStepDriver's step); true when one ran. Like advance_to otherwise.
+  bool step(Time limit = Time::max());
 
   std::size_t pending() const;
   std::optional<Time> next_event_time() const;
 
  private:
-  using Key = std::pair<Time, std::uint64_t>;  // (time, id): ids grow, so ties stay FIFO
+  bool advance(Time t, bool one_event);
 
   mutable std::mutex mutex_;
   Time now_;
-  std::uint64_t next_id_ = 1;
-  std::map<Key, std::function<void()>> queue_;
-  std::unordered_map<std::uint64_t, Time> times_;  // id -> time, for cancel()
+  detail::TimerQueue timers_;
 
   std::mutex advance_mutex_;          // one advancing thread at a time
   std::thread::id advancing_thread_;  // guarded by mutex_
@@ -89,10 +92,7 @@ class RealTimeDriver {
   SimClock& clock_;
   const double speedup_;
   const Time tick_;
-  mutable std::mutex mutex_;
-  std::condition_variable wake_;
-  bool stopping_ = false;
-  std::thread thread_;
+  detail::DriverThread thread_;
 };
 
 }  // namespace icars

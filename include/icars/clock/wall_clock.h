@@ -13,6 +13,7 @@
 #include <utility>
 
 #include "icars/clock/clock.h"
+#include "icars/clock/timer_queue.h"
 
 namespace icars {
 
@@ -36,8 +37,6 @@ class WallClock final : public Clock {
   std::size_t pending() const;
 
  private:
-  using Key = std::pair<Time, std::uint64_t>;  // (time, id): ids grow, so ties stay in order
-
   void run();
   std::chrono::steady_clock::time_point wall_for(Time t) const;
 
@@ -45,9 +44,7 @@ class WallClock final : public Clock {
   const Time start_;
   mutable std::mutex mutex_;
   std::condition_variable wake_;
-  std::map<Key, std::function<void()>> queue_;
-  std::unordered_map<std::uint64_t, Time> times_;  // id -> time, for cancel()
-  std::uint64_t next_id_ = 1;
+  detail::TimerQueue timers_;
   bool stopping_ = false;
   std::thread thread_;
 };

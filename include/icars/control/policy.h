@@ -17,13 +17,19 @@
 
 #include "icars/behavior/composite.h"
 #include "icars/behavior/condition.h"
+#include "icars/behavior/decorators.h"
+#include "icars/behavior/reactive.h"
 #include "icars/behavior/registry.h"
 
 namespace icars::control {
 
 // One node of a task's behavior tree, as the policy gives it.
 struct NodeSpec {
-  enum class Kind { behavior, sequential, concurrent, filter, interpret, aggregate };
+  enum class Kind {
+    behavior, sequential, concurrent, filter, interpret, aggregate,
+    fallback, reactive_sequence, reactive_fallback, condition, when,  // reactive.h, composite.h
+    retry, repeat, timeout, invert                                    // decorators.h
+  };
   Kind kind = Kind::behavior;
   std::string type;  // behavior type (Kind::behavior), else the element name
   std::string name;
@@ -32,8 +38,14 @@ struct NodeSpec {
   behavior::Completion completion = behavior::Completion::all;
   behavior::Condition pass;                     // filter
   std::vector<behavior::InterpretRule> rules;   // interpret
+  std::vector<int> rule_lines;                  // interpret: the line of each rule
   bool pass_unmatched = false;                  // interpret, aggregate
   behavior::AggregateSpec aggregate;            // aggregate
+  behavior::WhenBehavior::Options when;         // when
+  behavior::EventTrigger trigger;               // condition
+  int times = 0;                                // retry (attempts in all), repeat (runs); 0: forever
+  Time delay{0};                                // retry: the wait before each new attempt
+  Time limit{0};                                // timeout
   std::vector<NodeSpec> children;
   int line = 0;
 };
@@ -47,18 +59,37 @@ struct TaskSpec {
 };
 
 struct TransitionSpec {
-  std::string event;   // a task event, or "done" / "failed"
-  std::string target;  // a state
+  std::string event;          // a task event, or "done" / "failed"; "" for a delayed transition
+  std::optional<Time> after;  // a delayed transition: fires once its state has been active this long
+  std::string target;         // a state
   behavior::Condition guard;
   int line = 0;
 };
 
+// <send event= after=>: an event the statechart raises itself, `after` entering the state that
+// declares it (cancelled if the state is left first), offered to the configuration as task
+// events are.
+struct SendSpec {
+  std::string event;
+  Time after{0};
+  int line = 0;
+};
+
 struct StateSpec {
+  // A state (atomic, or composite with one active child), a parallel state (all its regions
+  // active at once), one region of a parallel state, or a final state (it completes its parent).
+  enum class Kind { state, parallel, region, final };
+  // What a composite state enters when it is entered again: its initial child (none), the child
+  // active when it was left (shallow), or the whole configuration below it then (deep).
+  enum class History { none, shallow, deep };
+  Kind kind = Kind::state;
   std::string name;
   std::string task;     // "" for a state without a task
   std::string initial;  // a composite state's initial child (default: the first)
+  History history = History::none;
   std::vector<StateSpec> children;
   std::vector<TransitionSpec> transitions;
+  std::vector<SendSpec> sends;
   int line = 0;
 };
 
@@ -72,7 +103,9 @@ struct Policy {
   const TaskSpec* task(std::string_view task_name) const;
 };
 
-// The task events every task raises: its root succeeded, or failed (property `reason`).
+// The task events every task raises: its root succeeded, or failed (property `reason`). A
+// composite state, region or parallel state raises `done` too when it completes (a final state
+// reached), with the property `completed` naming it.
 inline constexpr std::string_view kTaskDone = "done";
 inline constexpr std::string_view kTaskFailed = "failed";
 // The Service Framework's events about devices (service::DeviceRegistry): any state may have a
@@ -86,7 +119,8 @@ struct Diagnostic {
   int line = 0;
   bool warning = false;
   std::string message;
-  std::string to_string() const;  // "file:line: error: message"
+  int column = 0;                 // 1-based; 0: not known (only malformed XML has one)
+  std::string to_string() const;  // "file:line[:column]: error: message"
 };
 
 class PolicyError : public std::runtime_error {

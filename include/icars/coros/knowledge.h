@@ -3,7 +3,7 @@
 //
 //   AgentState          one agent as last heard of (from its HELLO)
 //   TaskState           one task as last heard of (auctioned, assigned, picked up, ...)
-//   AgentConfiguration  the agent's own settings, read from a JSON file (docs/coros.md)
+//   AgentConfiguration  the agent's own settings, read from and written as JSON (docs/coros.md)
 //   NeighborMonitor     the neighbour table: agents heard from within the expiry time
 //   TaskMonitor         the task table: the newest state of every task heard of
 //
@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
@@ -86,6 +87,13 @@ struct AgentConfiguration {
   static AgentConfiguration load(const std::filesystem::path& file);
   static AgentConfiguration parse(const std::string& json, const std::filesystem::path& base_dir,
                                   const std::string& source_name);
+  // The inverse of parse(): every setting it reads, so parse(to_json().dump(), ...) gives this
+  // configuration back. The map and track file are written as they are (a relative map is read
+  // back relative to parse's base_dir), the fleet key as 'key' (hex), never as 'key_file', and
+  // 'faults' only when they differ from none. The 'robot' section is written for robots and the
+  // 'user' section for users; for another role a section only when it holds a value other than
+  // the default (a monitor's robot.radius, say). Checks nothing: parse() does.
+  nlohmann::json to_json() const;
 };
 
 class NeighborMonitor {

@@ -52,6 +52,9 @@ struct FaultInjection {
   bool active() const { return drop > 0 || duplicate > 0 || delay > 0; }
   // "drop=0.2,duplicate=0.1,delay=0.3,max_delay_ms=80,seed=7"; throws CorosError.
   static FaultInjection parse(const std::string& spec);
+  // The inverse of parse(): every key, each number written so parse() reads it back exactly.
+  std::string spec() const;
+  friend bool operator==(const FaultInjection&, const FaultInjection&) = default;
 };
 
 struct TransportOptions {

@@ -29,14 +29,8 @@
 
 namespace icars::home {
 
-struct SpeechEvent {
-  std::string text;
-  double confidence = 0;
-  double direction = 0;  // radians, from the microphone towards the speaker
-  std::string room;      // the microphone's room
-  std::string device;    // the microphone
-  std::int64_t time_ms = 0;
-};
+// SpeechEvent and UserLocation, the composites' events, are typed PLANET events declared in
+// idl/home.idl (docs/events.md), so behaviors see them like any sensor's.
 
 class SpeechSensor final : public service::Service {
  public:
@@ -114,15 +108,6 @@ class CameraFactory final : public service::Service {
   std::atomic<std::uint64_t> remote_captures_{0};
 };
 
-struct UserLocation {
-  std::string person;
-  double x = 0;
-  double y = 0;
-  double confidence = 0;
-  std::string camera;  // the camera's device
-  std::int64_t time_ms = 0;
-};
-
 class UserLocator final : public service::Service {
  public:
   UserLocator(std::shared_ptr<CameraFactory> camera, std::shared_ptr<FaceRecognizerService> faces);
@@ -169,7 +154,3 @@ class CompositeFactory final : public service::Composer {
 service::MakeComposer composer(std::chrono::milliseconds camera_max_age = std::chrono::milliseconds(0));
 
 }  // namespace icars::home
-
-// The composites' events are typed PLANET events, so behaviors see them like any sensor's.
-PLANET_EVENT(icars::home::SpeechEvent, text, confidence, direction, room, device, time_ms);
-PLANET_EVENT(icars::home::UserLocation, person, x, y, confidence, camera, time_ms);

@@ -82,6 +82,9 @@ class Communicator final : private MessageHandler {
   asio::io_context::executor_type executor() { return io_->get_executor(); }
   bool in_io_thread() const { return io_thread_id_ == std::this_thread::get_id(); }
   spdlog::logger& log() { return *log_; }
+  // The lock-step activity this endpoint reports its work to (ConnectionOptions::activity), or
+  // null. Work handed from the io thread to another runs under a hold of it.
+  const std::shared_ptr<Activity>& activity() const { return options_.connection.activity; }
   const CommunicatorOptions& options() const { return options_; }
 
   // Server role; see ConnectionManager::listen.
@@ -197,6 +200,7 @@ class Communicator final : private MessageHandler {
 
   std::mutex bulk_mutex_;
   std::unique_ptr<asio::thread_pool> bulk_;  // large messages (on_large_message); lazily started
+  std::uint64_t activity_queue_ = 0;         // the io thread as a queue of the activity
   // NOTIFYs of each connection on the bulk thread, not yet handled: later NOTIFYs of that
   // connection follow them there. bulk_notifies_ is their total, read without the lock.
   std::unordered_map<const Connection*, std::size_t> bulk_pending_;

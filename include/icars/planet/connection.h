@@ -16,7 +16,6 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
-#include <list>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -24,6 +23,7 @@
 #include <string>
 #include <vector>
 
+#include "icars/clock/activity.h"
 #include "icars/planet/error.h"
 #include "icars/planet/frame.h"
 #include "icars/planet/security.h"
@@ -39,6 +39,10 @@ namespace icars::planet {
 
 namespace detail {
 struct TransportLimits;
+struct OutgoingMessage;
+struct ScheduledFrame;
+class FrameScheduler;
+struct IncomingMessage;
 }
 
 // Frames of one message the sender may have outstanding before a DATA_ACK(more); each ack
@@ -78,6 +82,10 @@ struct ConnectionOptions {
   // of a ConnectionManager; beyond it new multi-frame messages are refused (NO_MORE) and acks are
   // held back, except for one message at a time that may complete.
   std::size_t total_receive_budget = 256u << 20;
+  // Lock-step (icars/clock/activity.h): when set, a message to an endpoint of this process that
+  // shares the activity counts as work from send() until its receiver has handled it, and the
+  // communicator's io thread is one of the activity's queues. Null: nothing is counted.
+  std::shared_ptr<Activity> activity;
 
   void validate() const;  // throws std::invalid_argument naming the bad option
 };
@@ -212,8 +220,6 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
 
  private:
   enum class State : std::uint8_t { handshaking, open, closed };
-  struct Outgoing;
-  struct Incoming;
   struct Tls;
 
   void begin_handshake();
@@ -225,9 +231,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool handle_data(const FrameHeader& h, std::span<const std::byte> payload);
   bool handle_data_ack(std::span<const std::byte> payload);
   void release_deferred_acks();
-  bool refuse_incoming(const FrameHeader& h, Incoming& in, const std::string& reason);
-  void update_reservation(Incoming& in);
-  void forget_incoming(Incoming& in);
+  void update_reservation(detail::IncomingMessage& in);
+  void forget_incoming(detail::IncomingMessage& in);
   bool check_progress(std::chrono::steady_clock::time_point now);
   void log_denial(const std::string& who, const std::string& reason);
   void send_data_ack(std::uint32_t msg_no, AckCode code);
@@ -235,7 +240,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   void schedule_write_locked();
   void write_batch();
   void on_written(const std::error_code& ec, std::size_t n);
-  bool try_direct_send_locked(Outgoing& msg);
+  bool try_direct_send_locked(detail::OutgoingMessage& msg);
   void arm_timer();
   void on_timer();
   void fail(ErrorKind kind, const std::string& reason, bool quiet = false);  // quiet: debug log
@@ -262,6 +267,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::unique_ptr<Tls> tls_;  // null: plaintext
   std::uint64_t id_;
   std::string remote_address_;
+  Activity::LinkEnd link_;  // to the other end, when it is in this process (lock-step)
   std::string remote_ip_;
   std::shared_ptr<detail::TransportLimits> limits_;
   std::atomic<State> state_{State::handshaking};
@@ -285,7 +291,7 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::vector<std::byte> spare_;
   std::atomic<bool> handling_read_{false};  // the io thread is handling frames of one read
   bool spare_used_ = false;
-  std::vector<std::unique_ptr<Incoming>> incoming_;  // in arrival order; the first is the oldest
+  std::vector<std::unique_ptr<detail::IncomingMessage>> incoming_;  // in arrival order; the first is the oldest
   std::atomic<std::size_t> incomplete_bytes_{0};
   // Since when the bytes after the last whole frame have waited for the rest of their frame.
   std::optional<std::chrono::steady_clock::time_point> partial_frame_since_;
@@ -298,9 +304,9 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::size_t queued_bytes_ = 0;
   std::uint32_t next_msg_no_ = 1;
   std::deque<std::vector<std::byte>> control_;  // whole frames (header included), sent first
-  std::list<Outgoing> messages_;                 // messages with frames left, round-robin order
+  std::unique_ptr<detail::FrameScheduler> scheduler_;  // the messages with frames left
   ConnectionStats stats_;
-  std::vector<Outgoing> retired_;  // removed while a write may still reference their bytes
+  std::vector<detail::OutgoingMessage> retired_;  // removed while a write may still reference their bytes
 
   mutable std::mutex info_mutex_;
   std::string peer_pun_;
@@ -309,9 +315,10 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
 
   // The batch being written (io thread only while writing_).
   std::vector<asio::const_buffer> batch_;
+  std::vector<detail::ScheduledFrame> batch_frames_picked_;
   std::vector<FrameHeaderBytes> batch_headers_;
   std::vector<std::vector<std::byte>> batch_control_;
-  std::vector<Outgoing> batch_done_;  // messages whose last frame is in the batch
+  std::vector<detail::OutgoingMessage> batch_done_;  // messages whose last frame is in the batch
   std::size_t batch_payload_bytes_ = 0;
   std::size_t batch_frames_ = 0;
   std::optional<std::chrono::steady_clock::time_point> write_started_;  // guarded by send_mutex_

@@ -204,8 +204,8 @@ class Proxy {
           auto observed = observe(name);
           const std::uint32_t id = communicator_->start_call(
               link_, std::move(request), timeout_, mode,
-              [handler = std::move(handler), work = std::move(work), translator, observed](
-                  std::exception_ptr e, Reader* r) mutable {
+              [handler = std::move(handler), work = std::move(work), translator, observed,
+               activity = communicator_->activity()](std::exception_ptr e, Reader* r) mutable {
                 std::conditional_t<std::is_void_v<R>, char, R> value{};
                 if (e) e = translate(translator, e);
                 if (!e) {
@@ -221,14 +221,16 @@ class Proxy {
                 }
                 if (observed) observed->finished(e);
                 auto ex = work.get_executor();
+                // Lock-step: the completion is work until the handler has run.
                 asio::post(ex, [handler = std::move(handler), e, value = std::move(value),
-                                work = std::move(work)]() mutable {
+                                work = std::move(work), hold = Activity::Hold(activity.get())]() mutable {
                   if constexpr (std::is_void_v<R>) {
                     (void)value;
                     std::move(handler)(e);
                   } else {
                     std::move(handler)(e, std::move(value));
                   }
+                  hold.release();
                 });
               });
           if (observed) observed->started(id);

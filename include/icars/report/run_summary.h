@@ -48,12 +48,15 @@ class RunSummary {
   // The last effect per device ("power on", "channel 5").
   std::map<std::string, std::string> device_states() const;
 
-  // "=== summary: ..." and what follows, as `icars run` prints it.
+  // "=== summary: ..." and what follows, as `icars run` prints it; `clock` says how the clock
+  // ran ("lock-step at 600x").
   void print(std::FILE* out, const std::string& policy, Time from, Time to, double wall_seconds,
-             double speed) const;
-  // The robots' and users' tracks and the transitions, marked where the first robot was then.
-  // Needs keep_plot.
-  sim::PlotData plot(const std::string& title, const sim::House& house) const;
+             const std::string& clock) const;
+  // The robots' and users' tracks and the transitions, marked where the first robot was then,
+  // for the run from `from` to `to` (the plot's subtitle). Every robot and user of the house
+  // has a track, which begins at `from` where the house starts them (RobotSpec::start,
+  // UserSpec::start) unless the trace placed them at or before `from`. Needs keep_plot.
+  sim::PlotData plot(const std::string& title, const sim::House& house, Time from, Time to) const;
 
  private:
   void add(const behavior::TraceRecord& r);

@@ -39,6 +39,8 @@ struct ServerOptions {
   std::string listen = "127.0.0.1:0";  // host:port; port 0 lets the system choose
   // The PLANET server: `tls` (docs/security.md), `access` (who may connect and call what; null:
   // anyone, so listen on loopback only), `logger`, limits and timeouts (docs/protocol.md).
+  // `planet.connection.activity` runs the server in lock-step with a simulated house of this
+  // process (icars/clock/lock_step.h): its messages and its behaviors' handlers count as work.
   planet::CommunicatorOptions planet;
   // The adaptor services made for registered devices' capabilities (none known: every
   // capability is a GenericAdaptor), the registry's limits, and the composers of adaptive

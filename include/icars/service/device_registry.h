@@ -39,6 +39,10 @@ class AdaptorFactory {
   // The adaptor for `capability`; a GenericAdaptor when no maker knows its interface.
   std::shared_ptr<Adaptor> make(const df::DeviceInfo& device, const df::CapabilityInfo& capability) const;
   bool knows(const std::string& interface_id) const { return makers_.contains(interface_id); }
+  std::vector<std::string> interface_ids() const;
+  // Adds every maker of `other`; throws std::invalid_argument, adding none, if `other` has one
+  // for an interface this factory already knows.
+  void merge(AdaptorFactory&& other);
 
  private:
   std::map<std::string, Make> makers_;

@@ -80,6 +80,7 @@ struct DeviceSpec {
   std::string carrier;         // robot id, or "" for a static device
   Pose pose;                   // a carried device: the robot's start pose
   std::map<std::string, std::string> params;
+  std::size_t line = 0;  // of its element in the house file; 0 when not read from a file
 };
 
 struct RobotSpec {
@@ -113,6 +114,7 @@ struct UserSpec {
 
 struct House {
   std::string name;
+  std::string source;        // the file it was read from (the source name given to parse_house)
   Rect bounds;               // the rooms' bounding box
   double resolution = 0.05;  // m per planning grid cell
   Time start_time{0};     // when the simulation starts (day 0)
@@ -139,18 +141,22 @@ struct House {
   std::optional<Point> locate(std::string_view target) const;
 };
 
-// A house file that cannot be used. what() is "source:line: problem"; line is 0 when the
+// A house file that cannot be used. what() is "source:line: problem", or
+// "source:line:column: problem" when the column is known (malformed XML); line is 0 when the
 // problem is not on a line (an unreadable file).
 class HouseError : public std::runtime_error {
  public:
   HouseError(std::string source, std::size_t line, const std::string& problem);
+  HouseError(std::string source, std::size_t line, std::size_t column, const std::string& problem);
   const std::string& source() const noexcept { return source_; }
   std::size_t line() const noexcept { return line_; }
+  std::size_t column() const noexcept { return column_; }  // 0: not known
   const std::string& problem() const noexcept { return problem_; }
 
  private:
   std::string source_;
   std::size_t line_;
+  std::size_t column_;
   std::string problem_;
 };
 

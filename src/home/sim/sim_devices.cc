@@ -5,6 +5,7 @@
 #include <asio/co_spawn.hpp>
 #include <asio/detached.hpp>
 #include <asio/use_awaitable.hpp>
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -576,64 +577,150 @@ std::optional<SimulatedSpeech::Decoded> SimulatedSpeech::decode(const planet::Bi
 
 // --- Factories -------------------------------------------------------------------------------
 
-std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context) {
-  auto device = std::make_shared<device::Device>(spec.id, spec.type, spec.room, spec.carrier);
-  const std::string& t = spec.type;
-  if (t == "TV") {
-    device->add("tv_control", std::make_shared<SimTV>(spec.id, context));
-  } else if (t == "Light") {
-    device->add("light", std::make_shared<SimLight>(spec.id, context));
-  } else if (t == "Speaker") {
-    device->add("speaker", std::make_shared<SimSpeaker>(spec.id, context));
-  } else if (t == "Microphone") {
-    device->add("sound_sensor",
-                std::make_shared<SimMicrophone>(
-                    spec.id, context,
-                    number_param(spec, "threshold_db", kHearingThresholdDb)));
-  } else if (t == "Wheels") {
-    if (spec.carrier.empty()) throw std::invalid_argument("wheels " + spec.id + " belong to no robot");
-    device->add("wheels", std::make_shared<SimWheels>(spec.carrier, spec.id, context));
-  } else if (t == "Camera") {
-    device->add("camera", std::make_shared<SimCamera>(spec.id, context,
-                                                      number_param(spec, "range", 6.0)));
-  } else if (t == "MotionSensor") {
-    device->add("motion", std::make_shared<SimMotionSensor>(spec.id, param(spec, "room", spec.room), context));
-  } else if (t == "BedOccupancy" || t == "SofaOccupancy" || t == "Occupancy") {
-    const std::string fallback = t == "BedOccupancy" ? "bed" : t == "SofaOccupancy" ? "sofa" : "";
-    const std::string furniture = param(spec, "furniture", fallback);
-    if (!context.world.house().find_furniture(furniture)) {
-      throw std::invalid_argument("occupancy sensor " + spec.id + " watches unknown furniture '" +
-                                  furniture + "'");
-    }
-    device->add("occupancy", std::make_shared<SimOccupancySensor>(spec.id, furniture, context));
-  } else if (t == "Clock") {
-    device->add("clock", std::make_shared<SimClockDevice>(context.world));
-  } else if (t == "SpeechEngine") {
-    device->add("speech_recognizer", std::make_shared<SimSpeechRecognizer>());
-  } else if (t == "VisionEngine") {
-    device->add("face_recognizer", std::make_shared<SimFaceRecognizer>());
-  } else {
-    throw std::invalid_argument("device " + spec.id + " has type '" + t +
-                                "', which has no simulated implementation (expected TV, Light, "
-                                "Speaker, Microphone, Wheels, Camera, MotionSensor, "
-                                "BedOccupancy, SofaOccupancy, Occupancy, Clock, SpeechEngine or "
-                                "VisionEngine)");
+void SimDeviceTypes::add(const std::string& type, std::string description, MakeSimDevice make) {
+  if (has(type)) throw std::invalid_argument("simulated device type '" + type + "' is already registered");
+  if (!make) throw std::invalid_argument("simulated device type '" + type + "' has no factory");
+  types_.push_back({type, std::move(description), std::move(make)});
+}
+
+bool SimDeviceTypes::has(const std::string& type) const {
+  return std::any_of(types_.begin(), types_.end(), [&](const Type& t) { return t.name == type; });
+}
+
+std::vector<std::string> SimDeviceTypes::names() const {
+  std::vector<std::string> names;
+  for (const auto& t : types_) names.push_back(t.name);
+  return names;
+}
+
+const std::string& SimDeviceTypes::description(const std::string& type) const {
+  static const std::string none;
+  for (const auto& t : types_) {
+    if (t.name == type) return t.description;
   }
-  return device;
+  return none;
+}
+
+void SimDeviceTypes::merge(SimDeviceTypes&& other) {
+  for (auto& t : other.types_) add(t.name, std::move(t.description), std::move(t.make));
+  other.types_.clear();
+}
+
+namespace {
+
+std::string unknown_type(const sim::DeviceSpec& spec, const std::vector<std::string>& types) {
+  std::string known;
+  for (std::size_t i = 0; i < types.size(); ++i) {
+    known += (i == 0 ? "" : i + 1 == types.size() ? " or " : ", ") + types[i];
+  }
+  return "device " + spec.id + " has type '" + spec.type +
+         "', which has no simulated implementation (expected " + known + ")";
+}
+
+}  // namespace
+
+void SimDeviceTypes::check(const sim::House& house) const {
+  for (const auto& spec : house.devices) {
+    if (!has(spec.type)) throw sim::HouseError(house.source, spec.line, unknown_type(spec, names()));
+  }
+}
+
+std::shared_ptr<device::Device> SimDeviceTypes::make(const sim::DeviceSpec& spec, SimContext context) const {
+  for (const auto& t : types_) {
+    if (t.name == spec.type) return t.make(spec, context);
+  }
+  throw std::invalid_argument(unknown_type(spec, names()));
+}
+
+namespace {
+
+// A device of the house with one capability, made by `make(spec, context)`.
+template <class Make>
+MakeSimDevice one_capability(std::string capability, Make make) {
+  return [capability = std::move(capability), make = std::move(make)](const sim::DeviceSpec& spec, SimContext context) {
+    auto device = std::make_shared<device::Device>(spec.id, spec.type, spec.room, spec.carrier);
+    device->add(capability, make(spec, context));
+    return device;
+  };
+}
+
+SimDeviceTypes make_home_types() {
+  SimDeviceTypes types;
+  types.add("TV", "a television: tv_control (home::TVControl)", one_capability("tv_control", [](const sim::DeviceSpec& spec, SimContext c) {
+    return std::make_shared<SimTV>(spec.id, c);
+  }));
+  types.add("Light", "a dimmable light: light (home::Light)", one_capability("light", [](const sim::DeviceSpec& spec, SimContext c) {
+    return std::make_shared<SimLight>(spec.id, c);
+  }));
+  types.add("Speaker", "a speaker: speaker (home::Speaker)", one_capability("speaker", [](const sim::DeviceSpec& spec, SimContext c) {
+    return std::make_shared<SimSpeaker>(spec.id, c);
+  }));
+  types.add("Microphone", "a microphone hearing speech: sound_sensor (home::Microphone); param threshold_db",
+            one_capability("sound_sensor", [](const sim::DeviceSpec& spec, SimContext c) {
+              return std::make_shared<SimMicrophone>(spec.id, c, number_param(spec, "threshold_db", kHearingThresholdDb));
+            }));
+  types.add("Wheels", "a robot's wheels: wheels (home::Wheels); carried by a robot",
+            one_capability("wheels", [](const sim::DeviceSpec& spec, SimContext c) {
+              if (spec.carrier.empty()) throw std::invalid_argument("wheels " + spec.id + " belong to no robot");
+              return std::make_shared<SimWheels>(spec.carrier, spec.id, c);
+            }));
+  types.add("Camera", "a camera: camera (home::Camera); param range",
+            one_capability("camera", [](const sim::DeviceSpec& spec, SimContext c) {
+              return std::make_shared<SimCamera>(spec.id, c, number_param(spec, "range", 6.0));
+            }));
+  types.add("MotionSensor", "a motion sensor: motion (home::MotionSensor); param room",
+            one_capability("motion", [](const sim::DeviceSpec& spec, SimContext c) {
+              return std::make_shared<SimMotionSensor>(spec.id, param(spec, "room", spec.room), c);
+            }));
+  for (const std::string t : {"BedOccupancy", "SofaOccupancy", "Occupancy"}) {
+    const std::string fallback = t == "BedOccupancy" ? "bed" : t == "SofaOccupancy" ? "sofa" : "";
+    types.add(t, "an occupancy sensor: occupancy (home::OccupancySensor); param furniture",
+              one_capability("occupancy", [fallback](const sim::DeviceSpec& spec, SimContext c) {
+                const std::string furniture = param(spec, "furniture", fallback);
+                if (!c.world.house().find_furniture(furniture)) {
+                  throw std::invalid_argument("occupancy sensor " + spec.id + " watches unknown furniture '" +
+                                              furniture + "'");
+                }
+                return std::make_shared<SimOccupancySensor>(spec.id, furniture, c);
+              }));
+  }
+  types.add("Clock", "the house's clock: clock (home::Clock)", one_capability("clock", [](const sim::DeviceSpec&, SimContext c) {
+    return std::make_shared<SimClockDevice>(c.world);
+  }));
+  types.add("SpeechEngine", "a speech recognizer: speech_recognizer (home::SpeechRecognizer)",
+            one_capability("speech_recognizer", [](const sim::DeviceSpec&, SimContext) {
+              return std::make_shared<SimSpeechRecognizer>();
+            }));
+  types.add("VisionEngine", "a face recognizer: face_recognizer (home::FaceRecognizer)",
+            one_capability("face_recognizer", [](const sim::DeviceSpec&, SimContext) {
+              return std::make_shared<SimFaceRecognizer>();
+            }));
+  return types;
+}
+
+}  // namespace
+
+const SimDeviceTypes& sim_device_types() {
+  static const SimDeviceTypes types = make_home_types();
+  return types;
+}
+
+std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context) {
+  return sim_device_types().make(spec, context);
 }
 
 std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context) {
   sim::DeviceSpec speech;
-  speech.id = "speech_engine";
+  speech.id = std::string(kSpeechEngineId);
   speech.type = "SpeechEngine";
   sim::DeviceSpec vision;
-  vision.id = "vision_engine";
+  vision.id = std::string(kVisionEngineId);
   vision.type = "VisionEngine";
   return {make_sim_device(speech, context), make_sim_device(vision, context)};
 }
 
 std::shared_ptr<device::Device> make_simulator_device(SimContext context) {
-  auto device = std::make_shared<device::Device>("simulator", "Simulator");
+  auto device = std::make_shared<device::Device>(std::string(kSimulatorId), "Simulator");
   device->add("simulation", std::make_shared<SimulationControl>(context));
   return device;
 }

@@ -656,5 +656,43 @@ TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {
   }
 }
 
+TEST(SimDeviceTypes, AHouseTakesTypesAddedToTheHomesOnesAndRefusesTwoOfOneName) {
+  SimClock clock;
+  sim::World world(sim::load_house(ICARS_PAPER_HOUSE), clock);
+  p::Communicator communicator;
+  SimDeviceTypes types = sim_device_types();
+  EXPECT_TRUE(types.has("TV"));
+  EXPECT_FALSE(types.has("Toaster"));
+  EXPECT_THROW(types.add("TV", "another television", [](const sim::DeviceSpec&, SimContext) {
+    return std::shared_ptr<device::Device>();
+  }), std::invalid_argument);
+
+  // A plugin's registry, merged: its type is made with the spec it was given.
+  SimDeviceTypes plugin;
+  plugin.add("Toaster", "makes toast", [](const sim::DeviceSpec& spec, SimContext) {
+    return std::make_shared<device::Device>(spec.id, spec.type, spec.room);
+  });
+  types.merge(std::move(plugin));
+  EXPECT_TRUE(plugin.names().empty());
+  EXPECT_EQ(types.names().back(), "Toaster");
+  EXPECT_EQ(types.description("Toaster"), "makes toast");
+  sim::DeviceSpec spec;
+  spec.id = "toaster";
+  spec.type = "Toaster";
+  spec.room = "living_room";
+  const auto toaster = types.make(spec, SimContext{world, communicator});
+  ASSERT_NE(toaster, nullptr);
+  EXPECT_EQ(toaster->id(), "toaster");
+  // The home's own list knows nothing of it; an unknown type names every known one.
+  EXPECT_THROW(make_sim_device(spec, SimContext{world, communicator}), std::invalid_argument);
+  spec.type = "Kettle";
+  try {
+    types.make(spec, SimContext{world, communicator});
+    FAIL() << "a kettle was simulated";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("VisionEngine or Toaster)"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace icars::home

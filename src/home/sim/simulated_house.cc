@@ -1,5 +1,7 @@
 #include "icars/home/sim/simulated_house.h"
 
+#include <stdexcept>
+
 namespace icars::home {
 
 SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
@@ -11,6 +13,7 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   comm.tls = options_.tls;
   comm.token = options_.token;
   comm.logger = options_.logger;
+  comm.connection.activity = options_.activity;
   communicator_ = std::make_unique<planet::Communicator>(comm);
   manager_ = std::make_unique<device::DeviceManager>(*communicator_);
   std::vector<const sim::DeviceSpec*> hosted;
@@ -23,16 +26,22 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     state_ = std::make_unique<SimStateFile>(options_.state_file, *world_, std::move(ids), options_.logger);
   }
   const SimContext context{*world_, *communicator_, options_.effects, state_.get()};
-  for (const auto* spec : hosted) manager_->add(make_sim_device(*spec, context));
+  for (const auto* spec : hosted) {
+    try {
+      manager_->add(options_.device_types.make(*spec, context));
+    } catch (const std::invalid_argument& e) {  // an unknown type, parameters it cannot use
+      throw sim::HouseError(world_->house().source, spec->line, e.what());
+    }
+  }
   if (options_.engines) {
     for (auto& d : make_sim_engines(context)) manager_->add(d);
   }
   if (options_.simulator) manager_->add(make_simulator_device(context));
-  driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
+  if (!options_.activity) driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
 }
 
 SimulatedHouse::~SimulatedHouse() {
-  driver_->stop();
+  if (driver_) driver_->stop();
   manager_.reset();
   communicator_.reset();  // no servant runs after this
   state_.reset();         // its last write reads the world
@@ -41,7 +50,7 @@ SimulatedHouse::~SimulatedHouse() {
 
 void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
   if (state_) state_->start();
-  driver_->start();
+  if (driver_) driver_->start();
   manager_->connect(host, port);
 }
 

@@ -25,6 +25,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "icars/clock/sim_clock.h"
@@ -80,8 +81,49 @@ struct SimContext {
   SimStateFile* state;  // not owned; outlives the devices
 };
 
-// The device for a device of the house; throws std::invalid_argument for an unknown type.
+// Builds the simulated device for a <device> of the house file; throws std::invalid_argument
+// for parameters it cannot use.
+using MakeSimDevice = std::function<std::shared_ptr<device::Device>(const sim::DeviceSpec&, SimContext)>;
+
+// The device types a simulated house can hold, by the `type` of a <device>: the home's
+// (sim_device_types()) and any a plugin adds (registrar.extension<home::SimDeviceTypes>(),
+// docs/plugins.md).
+class SimDeviceTypes {
+ public:
+  // Throws std::invalid_argument when `type` is already there.
+  void add(const std::string& type, std::string description, MakeSimDevice make);
+  bool has(const std::string& type) const;
+  std::vector<std::string> names() const;  // in the order added
+  const std::string& description(const std::string& type) const;  // "" for an unknown type
+  // Adds the other's types (none of which may be here already).
+  void merge(SimDeviceTypes&& other);
+
+  // Throws sim::HouseError at the line of the house's first device of an unknown type.
+  void check(const sim::House& house) const;
+
+  // The device of `spec`; throws std::invalid_argument for an unknown type (naming the known
+  // ones) or parameters the type cannot use.
+  std::shared_ptr<device::Device> make(const sim::DeviceSpec& spec, SimContext context) const;
+
+ private:
+  struct Type {
+    std::string name, description;
+    MakeSimDevice make;
+  };
+  std::vector<Type> types_;
+};
+
+// The home's device types, listed above.
+const SimDeviceTypes& sim_device_types();
+
+// The device for a device of the house, of one of the home's types (sim_device_types());
+// throws std::invalid_argument for an unknown type.
 std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, SimContext context);
+// The ids of the devices every simulated house has besides its own: the engines and the
+// simulator below.
+inline constexpr std::string_view kSpeechEngineId = "speech_engine";
+inline constexpr std::string_view kVisionEngineId = "vision_engine";
+inline constexpr std::string_view kSimulatorId = "simulator";
 // The software devices every simulated house gets: a speech engine and a vision engine.
 std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context);
 // The pseudo-device "simulator" with its Simulation capability.

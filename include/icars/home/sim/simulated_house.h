@@ -11,6 +11,7 @@
 #include <set>
 #include <string>
 
+#include "icars/clock/activity.h"
 #include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/sim/sim_devices.h"
@@ -35,6 +36,11 @@ struct SimulatedHouseOptions {
   std::shared_ptr<spdlog::logger> logger;  // the device communicator's; default: stderr, info
   EffectObserver effects;  // hears what the simulated actuators do (SimContext::effects)
   std::filesystem::path state_file;  // keep the devices' state here; empty: none
+  SimDeviceTypes device_types = sim_device_types();  // the types its devices may have
+  // Lock-step (icars/clock/lock_step.h): the devices' messages count as work of this activity,
+  // and the house does not drive its clock (a LockStepDriver does, from start()). Null: the
+  // clock runs at `speedup` with the wall clock.
+  std::shared_ptr<Activity> activity;
 };
 
 class SimulatedHouse {
@@ -44,8 +50,8 @@ class SimulatedHouse {
   ~SimulatedHouse();  // stops the clock first, so no world event runs during teardown
 
   // Restores the robots from the state file and writes it (throwing std::runtime_error
-  // naming the file when it cannot), then starts the clock and connects to the server
-  // (registering every device, again after every reconnection). Set the clock first (--epoch):
+  // naming the file when it cannot), then starts the clock (unless in lock-step) and connects
+  // to the server (registering every device, again after every reconnection). Set the clock first (--epoch):
   // a robot's kept motion goes on from the clock's time here.
   void start(const std::string& host, std::uint16_t port);
 
@@ -62,7 +68,7 @@ class SimulatedHouse {
   std::unique_ptr<SimStateFile> state_;  // outlives the devices, not the world
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<device::DeviceManager> manager_;
-  std::unique_ptr<RealTimeDriver> driver_;
+  std::unique_ptr<RealTimeDriver> driver_;  // null in lock-step
 };
 
 }  // namespace icars::home

@@ -1,15 +1,16 @@
 // The Policy Parser: XML (pugixml) → Policy, with every check that needs no running system.
 #include <fmt/format.h>
 
-#include <pugixml.hpp>
 
 #include <algorithm>
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <set>
 #include <sstream>
 
 #include "icars/control/policy.h"
+#include "icars/xml/xml_text.h"
 
 namespace icars::control {
 
@@ -23,7 +24,8 @@ const TaskSpec* Policy::task(std::string_view task_name) const {
 }
 
 std::string Diagnostic::to_string() const {
-  return fmt::format("{}:{}: {}: {}", file, line, warning ? "warning" : "error", message);
+  const auto where = column > 0 ? fmt::format("{}:{}:{}", file, line, column) : fmt::format("{}:{}", file, line);
+  return fmt::format("{}: {}: {}", where, warning ? "warning" : "error", message);
 }
 
 namespace {
@@ -51,13 +53,13 @@ namespace {
 class Parser {
  public:
   Parser(std::string_view xml, std::string file, const b::BehaviorRegistry& registry)
-      : xml_(xml), file_(std::move(file)), registry_(registry) {}
+      : text_(xml), file_(std::move(file)), registry_(registry) {}
 
   ParsedPolicy parse() {
     pugi::xml_document doc;
-    const auto result = doc.load_buffer(xml_.data(), xml_.size(), pugi::parse_default, pugi::encoding_utf8);
-    if (!result) {
-      error(line_of(result.offset), fmt::format("malformed XML: {}", result.description()));
+    if (const auto problem = text_.load(doc)) {
+      errors_.push_back({file_, static_cast<int>(problem->at.line), false, problem->message,
+                         static_cast<int>(problem->at.column)});
       throw PolicyError(errors_);
     }
     const auto root = doc.document_element();
@@ -119,20 +121,7 @@ class Parser {
   };
 
   // --- Diagnostics ----------------------------------------------------------------------------
-  // Line numbers come from the offsets of the newlines, found once: counting them from the start
-  // for every node made parsing quadratic in the file's size.
-  int line_of(std::ptrdiff_t offset) {
-    if (offset < 0) return 0;
-    if (!newlines_indexed_) {
-      for (std::size_t i = 0; i < xml_.size(); ++i) {
-        if (xml_[i] == '\n') newlines_.push_back(i);
-      }
-      newlines_indexed_ = true;
-    }
-    const auto end = std::min<std::size_t>(static_cast<std::size_t>(offset), xml_.size());
-    return 1 + static_cast<int>(std::lower_bound(newlines_.begin(), newlines_.end(), end) - newlines_.begin());
-  }
-  int line(const pugi::xml_node& node) { return line_of(node.offset_debug()); }
+  int line(const pugi::xml_node& node) { return static_cast<int>(text_.line(node)); }
   void error(int line, std::string message) { errors_.push_back({file_, line, false, std::move(message)}); }
   void warning(int line, std::string message) { warnings_.push_back({file_, line, true, std::move(message)}); }
 
@@ -200,7 +189,8 @@ class Parser {
     return task;
   }
 
-  NodeSpec parse_node(const pugi::xml_node& node) {
+  // A node of a behavior tree, inside `parent` (an element name; "task" for a root).
+  NodeSpec parse_node(const pugi::xml_node& node, std::string_view parent = "task") {
     NodeSpec spec;
     spec.line = line(node);
     const Nesting nesting(nesting_);
@@ -226,7 +216,13 @@ class Parser {
         }
         check_attributes(child, {"name", "value"});
         const auto name = required(child, "name");
-        if (!name.empty()) spec.params[name] = child.attribute("value").as_string();
+        // The value is the attribute, or the element's text (which keeps its line breaks: a
+        // command table, one entry per line).
+        const bool has_text = !std::string_view(child.text().get()).empty();
+        if (child.attribute("value") && has_text) {
+          error(line(child), fmt::format("<param name=\"{}\"> has both a value attribute and text (expected one)", name));
+        }
+        if (!name.empty()) spec.params[name] = has_text ? child.text().get() : child.attribute("value").as_string();
       }
       if (!spec.type.empty()) {
         checked(node, [&] { return registry_.check(spec.type, spec.params); });
@@ -280,26 +276,118 @@ class Parser {
       } else {
         error(spec.line, fmt::format("complete=\"{}\": expected all, any or first", complete));
       }
+    } else if (kind == "fallback" || kind == "reactive_sequence" || kind == "reactive_fallback") {
+      spec.kind = kind == "fallback"            ? NodeSpec::Kind::fallback
+                  : kind == "reactive_sequence" ? NodeSpec::Kind::reactive_sequence
+                                                : NodeSpec::Kind::reactive_fallback;
+      check_attributes(node, {"name"});
+    } else if (kind == "condition") {
+      spec.kind = NodeSpec::Kind::condition;
+      check_attributes(node, {"name", "event", "if"});
+      spec.trigger = trigger(node);
+      if (parent != "reactive_sequence" && parent != "reactive_fallback") {
+        error(spec.line, fmt::format("<condition> belongs in <reactive_sequence> or <reactive_fallback>, not in <{}>", parent));
+      }
+    } else if (kind == "when") {
+      spec.kind = NodeSpec::Kind::when;
+      check_attributes(node, {"name", "event", "if", "running", "times", "on_failure"});
+      auto& w = spec.when;
+      w.trigger = trigger(node);
+      const std::string_view running = node.attribute("running").as_string("ignore");
+      if (auto r = b::while_running_from_string(running)) {
+        w.while_running = *r;
+      } else {
+        error(spec.line, fmt::format("running=\"{}\": expected restart or ignore", running));
+      }
+      if (node.attribute("times")) w.times = count(node, "times");
+      const std::string_view on_failure = node.attribute("on_failure").as_string("fail");
+      if (on_failure != "fail" && on_failure != "continue") {
+        error(spec.line, fmt::format("on_failure=\"{}\": expected fail or continue", on_failure));
+      }
+      w.continue_on_failure = on_failure == "continue";
+    } else if (kind == "retry" || kind == "repeat") {
+      spec.kind = kind == "retry" ? NodeSpec::Kind::retry : NodeSpec::Kind::repeat;
+      if (kind == "retry") {
+        check_attributes(node, {"name", "times", "delay"});
+        if (node.attribute("delay")) spec.delay = checked(node, [&] { return b::parse_duration("delay", node.attribute("delay").value()); });
+      } else {
+        check_attributes(node, {"name", "times"});
+      }
+      if (!required(node, "times").empty()) spec.times = count(node, "times");
+    } else if (kind == "timeout") {
+      spec.kind = NodeSpec::Kind::timeout;
+      check_attributes(node, {"name", "after"});
+      if (const auto after = required(node, "after"); !after.empty()) {
+        spec.limit = checked(node, [&] { return b::parse_duration("after", after); });
+        if (spec.limit.count() <= 0) error(spec.line, fmt::format("after=\"{}\": expected a duration longer than 0 (30s, 5min)", after));
+      }
+    } else if (kind == "invert") {
+      spec.kind = NodeSpec::Kind::invert;
+      check_attributes(node, {"name"});
     } else {
-      error(spec.line, fmt::format("unknown node <{}> (expected behavior, sequential, concurrent, filter, interpret or aggregate)", kind));
+      error(spec.line, fmt::format("unknown node <{}> (expected behavior, sequential, fallback, concurrent, filter, "
+                                   "interpret, aggregate, reactive_sequence, reactive_fallback, when, retry, "
+                                   "repeat, timeout or invert)", kind));
       return spec;
     }
     for (auto child : node.children()) {
       if (child.type() != pugi::node_element) continue;
+      if (spec.kind == NodeSpec::Kind::condition) {
+        error(line(child), fmt::format("unexpected <{}> in <condition> (it takes no children)", child.name()));
+        continue;
+      }
       if (std::string_view(child.name()) == "rule") {
         if (spec.kind != NodeSpec::Kind::interpret) {
           error(line(child), fmt::format("<rule> belongs in <interpret>, not in <{}>", kind));
           continue;
         }
         spec.rules.push_back(parse_rule(child));
+        spec.rule_lines.push_back(line(child));
         continue;
       }
-      spec.children.push_back(parse_node(child));
+      spec.children.push_back(parse_node(child, kind));
     }
     if (spec.kind == NodeSpec::Kind::interpret && spec.rules.empty()) {
       error(spec.line, "<interpret> needs at least one <rule when= emit=>");
     }
+    switch (spec.kind) {
+      case NodeSpec::Kind::when:
+      case NodeSpec::Kind::retry:
+      case NodeSpec::Kind::repeat:
+      case NodeSpec::Kind::timeout:
+      case NodeSpec::Kind::invert:
+        if (spec.children.size() != 1) {
+          error(spec.line, fmt::format("<{}> wraps exactly one node, found {}", kind, spec.children.size()));
+        }
+        break;
+      case NodeSpec::Kind::fallback:
+      case NodeSpec::Kind::reactive_sequence:
+      case NodeSpec::Kind::reactive_fallback:
+        if (spec.children.empty()) error(spec.line, fmt::format("<{}> needs at least one node", kind));
+        break;
+      default:
+        break;
+    }
     return spec;
+  }
+
+  // `event` (required) and `if` of a <when> or a <condition>.
+  b::EventTrigger trigger(const pugi::xml_node& node) { return {required(node, "event"), condition(node, "if")}; }
+
+  // A count attribute: a whole number of at least 1, or `forever` (also `0`, as in
+  // <sequential repeat>), read as 0.
+  int count(const pugi::xml_node& node, const char* attribute) {
+    const std::string_view text = node.attribute(attribute).value();
+    if (text == "forever") return 0;
+    long long n = -1;
+    try {
+      n = b::parse_integer(attribute, text);
+    } catch (const b::ParamError&) {
+      n = -1;  // reported below, with what a count looks like
+    }
+    if (n >= 0 && n <= std::numeric_limits<int>::max()) return static_cast<int>(n);
+    error(line(node), fmt::format("{}=\"{}\": expected a count (1, 2, ...) or forever", attribute, text));
+    return 1;
   }
 
   b::InterpretRule parse_rule(const pugi::xml_node& node) {
@@ -321,6 +409,7 @@ class Parser {
   }
 
   // --- The statechart -------------------------------------------------------------------------
+  // <statechart> (is_chart), <state>, <parallel>, <region> or <final>, with what it holds.
   StateSpec parse_state(const pugi::xml_node& node, bool is_chart) {
     StateSpec state;
     state.line = line(node);
@@ -330,33 +419,112 @@ class Parser {
                                     "statechart)", kMaxNesting));
       return state;
     }
+    const std::string_view element = node.name();
     if (is_chart) {
       check_attributes(node, {"initial"});
     } else {
-      check_attributes(node, {"name", "task", "initial"});
+      if (element == "parallel") {
+        state.kind = StateSpec::Kind::parallel;
+        check_attributes(node, {"name", "task"});
+      } else if (element == "region") {
+        state.kind = StateSpec::Kind::region;
+        check_attributes(node, {"name", "task", "initial", "history"});
+      } else if (element == "final") {
+        state.kind = StateSpec::Kind::final;
+        check_attributes(node, {"name"});
+      } else {
+        check_attributes(node, {"name", "task", "initial", "history"});
+      }
       state.name = required(node, "name");
     }
     state.task = node.attribute("task").as_string();
     state.initial = node.attribute("initial").as_string();
+    if (const auto history = node.attribute("history");
+        history && (state.kind == StateSpec::Kind::state || state.kind == StateSpec::Kind::region)) {
+      const std::string_view h = history.value();
+      if (h == "shallow") {
+        state.history = StateSpec::History::shallow;
+      } else if (h == "deep") {
+        state.history = StateSpec::History::deep;
+      } else {
+        error(state.line, fmt::format("history=\"{}\": expected shallow or deep", h));
+      }
+    }
     for (auto child : node.children()) {
       if (child.type() != pugi::node_element) continue;
       const std::string_view name = child.name();
-      if (name == "state") {
-        state.children.push_back(parse_state(child, false));
+      if (state.kind == StateSpec::Kind::final) {
+        error(line(child), fmt::format("final state '{}' cannot hold <{}>: a final state has no task, child "
+                                       "states or transitions", state.name, name));
       } else if (name == "transition") {
-        check_attributes(child, {"event", "target", "guard"});
-        TransitionSpec t;
-        t.line = line(child);
-        t.event = required(child, "event");
-        t.target = required(child, "target");
-        t.guard = condition(child, "guard");
-        state.transitions.push_back(std::move(t));
+        state.transitions.push_back(parse_transition(child));
+      } else if (name == "send") {
+        state.sends.push_back(parse_send(child));
+      } else if (state.kind == StateSpec::Kind::parallel) {
+        if (name == "region") {
+          state.children.push_back(parse_state(child, false));
+        } else {
+          error(line(child), fmt::format("unexpected <{}> in <parallel> (expected <region>, <transition> or <send>)", name));
+        }
+      } else if (name == "state" || name == "parallel" || name == "final") {
+        state.children.push_back(parse_state(child, false));
+      } else if (name == "region") {
+        error(line(child), fmt::format("<region> belongs in <parallel>, not in <{}>", element));
       } else {
-        error(line(child), fmt::format("unexpected <{}> in a state (expected <state> or <transition>)", name));
+        error(line(child), fmt::format("unexpected <{}> in a state (expected <state>, <parallel>, <final>, "
+                                       "<transition> or <send>)", name));
       }
     }
     if (is_chart && state.children.empty()) error(state.line, "the statechart has no <state>");
+    if (state.kind == StateSpec::Kind::parallel && state.children.size() < 2) {
+      error(state.line, fmt::format("parallel state '{}' needs at least two <region>s, found {}", state.name,
+                                    state.children.size()));
+    }
+    if (state.history != StateSpec::History::none && state.children.empty()) {
+      error(state.line, fmt::format("history=\"{}\" on '{}', which has no child states (history belongs on a "
+                                    "composite state or a region)", node.attribute("history").value(), state.name));
+    }
     return state;
+  }
+
+  TransitionSpec parse_transition(const pugi::xml_node& node) {
+    check_attributes(node, {"event", "after", "target", "guard"});
+    TransitionSpec t;
+    t.line = line(node);
+    const bool has_event = !node.attribute("event").empty();
+    const bool has_after = !node.attribute("after").empty();
+    if (has_event && has_after) {
+      error(t.line, "<transition> takes an 'event' or an 'after' delay, not both");
+    } else if (has_after) {
+      const std::string_view after = node.attribute("after").value();
+      t.after = checked(node, [&] { return std::optional(b::parse_duration("after", after)); });
+      if (t.after && *t.after <= Time{0}) error(t.line, fmt::format("after=\"{}\": a delayed transition needs a duration longer than 0", after));
+    } else if (!has_event) {
+      error(t.line, "<transition> needs an 'event' attribute (or 'after' for a delayed transition)");
+    } else {
+      t.event = required(node, "event");
+    }
+    t.target = required(node, "target");
+    t.guard = condition(node, "guard");
+    return t;
+  }
+
+  SendSpec parse_send(const pugi::xml_node& node) {
+    check_attributes(node, {"event", "after"});
+    SendSpec send;
+    send.line = line(node);
+    send.event = required(node, "event");
+    if (send.event == kTaskDone || send.event == kTaskFailed) {
+      error(send.line, fmt::format("<send> cannot raise '{}': the Coordinator raises it when a task or state completes",
+                                   send.event));
+    }
+    if (node.attribute("after")) {
+      send.after = checked(node, [&] { return b::parse_duration("after", node.attribute("after").value()); });
+    }
+    for (auto child : node.children()) {
+      if (child.type() == pugi::node_element) error(line(child), fmt::format("unexpected <{}> in <send> (it holds nothing)", child.name()));
+    }
+    return send;
   }
 
   void check_chart(const Policy& policy) {
@@ -370,6 +538,10 @@ class Parser {
       }
     };
     collect(policy.root);
+    const auto parent_of = [&](const StateSpec* s) -> const StateSpec* {
+      const auto it = parent.find(s);
+      return it == parent.end() ? nullptr : it->second;
+    };
     std::set<std::string> handled;
     std::function<void(const StateSpec&)> check = [&](const StateSpec& s) {
       if (!s.task.empty() && !policy.task(s.task)) {
@@ -379,34 +551,53 @@ class Parser {
           std::none_of(s.children.begin(), s.children.end(), [&](const StateSpec& c) { return c.name == s.initial; })) {
         error(s.line, fmt::format("initial state '{}' is not a child of '{}'", s.initial, s.name));
       }
-      // Events that can reach this state's transitions: those of the tasks active while it is.
+      // Events that can reach this state's transitions: those the tasks and <send>s of the states
+      // active while it is raise — its ancestors, its descendants, and every region of a parallel
+      // state it is in.
       std::set<std::string> raisable{std::string(kTaskDone), std::string(kTaskFailed)};
       for (const auto d : kDeviceEvents) raisable.emplace(d);
       std::vector<std::string> tasks;
-      auto add_task = [&](const StateSpec& st) {
+      auto add_state = [&](const StateSpec& st) {
         if (const auto* t = policy.task(st.task)) {
-          tasks.push_back(t->name);
+          if (std::find(tasks.begin(), tasks.end(), t->name) == tasks.end()) tasks.push_back(t->name);
           raisable.insert(t->events.begin(), t->events.end());
         }
+        for (const auto& send : st.sends) raisable.insert(send.event);
       };
-      for (const StateSpec* a = &s; a; a = parent.contains(a) ? parent[a] : nullptr) add_task(*a);
       std::function<void(const StateSpec&)> below = [&](const StateSpec& st) {
         for (const auto& c : st.children) {
-          add_task(c);
+          add_state(c);
           below(c);
         }
       };
+      for (const StateSpec* a = &s; a; a = parent_of(a)) {
+        add_state(*a);
+        if (a->kind == StateSpec::Kind::parallel) below(*a);
+      }
       below(s);
       for (const auto& t : s.transitions) {
-        handled.insert(t.event);
+        if (!t.event.empty()) handled.insert(t.event);
         if (!t.target.empty() && !states.contains(t.target)) {
-          error(t.line, fmt::format("transition on '{}' goes to state '{}', which does not exist", t.event, t.target));
+          error(t.line, fmt::format("transition {} goes to state '{}', which does not exist",
+                                    t.event.empty() ? "after a delay" : fmt::format("on '{}'", t.event), t.target));
         }
         if (!t.event.empty() && !raisable.contains(t.event)) {
           error(t.line, fmt::format(
               "transition on '{}' in state '{}' can never fire: no task active there raises it (tasks: {}; events: {})",
               t.event, s.name.empty() ? policy.name : s.name, tasks.empty() ? std::string("none") : fmt::format("{}", fmt::join(tasks, ", ")),
               fmt::join(raisable, ", ")));
+        }
+      }
+      // A parallel state completes when every region reached a final state: one without any
+      // leaves a 'done' transition on it to its tasks' done only.
+      if (s.kind == StateSpec::Kind::parallel &&
+          std::any_of(s.transitions.begin(), s.transitions.end(), [](const TransitionSpec& t) { return t.event == kTaskDone; })) {
+        for (const auto& region : s.children) {
+          if (std::none_of(region.children.begin(), region.children.end(),
+                           [](const StateSpec& c) { return c.kind == StateSpec::Kind::final; })) {
+            warning(region.line, fmt::format("region '{}' has no <final>: parallel state '{}' never completes, so its "
+                                             "'done' transition fires only on a task's done", region.name, s.name));
+          }
         }
       }
       for (const auto& c : s.children) check(c);
@@ -417,6 +608,16 @@ class Parser {
         if (!handled.contains(e)) warning(task.line, fmt::format("task '{}' raises '{}', but no transition handles it", task.name, e));
       }
     }
+    std::function<void(const StateSpec&)> sends_handled = [&](const StateSpec& s) {
+      for (const auto& send : s.sends) {
+        if (!handled.contains(send.event)) {
+          warning(send.line, fmt::format("state '{}' sends '{}', but no transition handles it",
+                                         s.name.empty() ? policy.name : s.name, send.event));
+        }
+      }
+      for (const auto& c : s.children) sends_handled(c);
+    };
+    sends_handled(policy.root);
     // A failing task should lead somewhere: warn for states whose task failure nothing handles.
     std::function<void(const StateSpec&, bool)> failure_handled = [&](const StateSpec& s, bool inherited) {
       const bool here = inherited || std::any_of(s.transitions.begin(), s.transitions.end(),
@@ -429,9 +630,7 @@ class Parser {
     failure_handled(policy.root, false);
   }
 
-  std::string_view xml_;
-  std::vector<std::size_t> newlines_;  // offsets of the '\n's in xml_
-  bool newlines_indexed_ = false;
+  xml::XmlText text_;
   std::string file_;
   const b::BehaviorRegistry& registry_;
   std::vector<Diagnostic> errors_;
