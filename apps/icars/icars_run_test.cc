@@ -67,18 +67,6 @@ auto user(const std::string& posture, const std::string& furniture) {
   };
 }
 
-// The first record matching `pred` at or after the time of record `cause` (in lock-step a
-// reaction is at the instant of its cause, and may be written before the cause's record).
-template <class Pred>
-std::size_t at_or_after(const std::vector<json>& t, std::size_t cause, Pred pred) {
-  if (cause >= t.size()) return t.size();
-  const auto since = t[cause]["t"].get<std::int64_t>();
-  for (std::size_t i = 0; i < t.size(); ++i) {
-    if (t[i]["t"].get<std::int64_t>() >= since && pred(t[i])) return i;
-  }
-  return t.size();
-}
-
 }  // namespace
 
 // The acceptance run: the shipped policy on the paper's house, evening to morning.
@@ -94,7 +82,7 @@ TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
   // The user sits on the sofa → RestMode; the robot reaches the user.
   const auto sits = find(t, 0, user("sitting", "sofa"));
   ASSERT_LT(sits, n);
-  const auto rest = at_or_after(t, sits, transition_to("RestMode"));
+  const auto rest = find(t, sits, transition_to("RestMode"));
   ASSERT_LT(rest, n) << "no RestMode after the user sat down";
   const auto reached = find(t, rest, event("ReachedUser"));
   ASSERT_LT(reached, n) << "the robot did not reach the user";
@@ -110,7 +98,7 @@ TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
   // The user lies in bed at night → SleepMode: lights off, calm music, every patrol waypoint.
   const auto lies = find(t, reached, user("lying", "bed"));
   ASSERT_LT(lies, n);
-  const auto sleep = at_or_after(t, lies, transition_to("SleepMode"));
+  const auto sleep = find(t, lies, transition_to("SleepMode"));
   ASSERT_LT(sleep, n) << "no SleepMode after the user lay down";
   EXPECT_LT(find(t, sleep, effect("living_light", "power", "off")), n);
   EXPECT_LT(find(t, sleep, effect("bedroom_light", "power", "off")), n);
@@ -132,7 +120,7 @@ TEST(IcarsRun, ThePaperHomeFromEveningToMorning) {
   // The user gets up in the morning → back to Observation.
   const auto gets_up = find(t, sleep, [](const json& j) { return str(j, "kind") == "user" && str(j, "posture") == "standing"; });
   ASSERT_LT(gets_up, n);
-  EXPECT_LT(at_or_after(t, gets_up, transition_to("Observation")), n);
+  EXPECT_LT(find(t, gets_up, transition_to("Observation")), n);
 
   // Nothing failed on the way, and the plot was drawn.
   EXPECT_EQ(find(t, 0, [](const json& j) { return str(j, "kind") == "behavior" && str(j, "event") == "failure"; }), n);

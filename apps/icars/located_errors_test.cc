@@ -5,10 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
-#include <fstream>
-#include <regex>
 #include <string>
 
+#include "fixture_expectation.h"
 #include "program_run.h"
 
 namespace {
@@ -17,21 +16,6 @@ const std::string kIcars = ICARS_BINARY;
 const std::string kSource = ICARS_SOURCE_DIR;
 const std::string kBad = kSource + "/apps/icars/testdata/bad";
 const std::string kPaperHouse = kSource + "/houses/paper_house.xml";
-
-struct Expectation {
-  std::string line;
-  std::string message;
-};
-
-Expectation expectation_of(const std::filesystem::path& file) {
-  std::ifstream in(file);
-  std::string first;
-  std::getline(in, first);
-  std::smatch m;
-  static const std::regex pattern(R"(<!-- expect (\d+): (.*) -->)");
-  if (!std::regex_search(first, m, pattern)) return {};
-  return {m[1].str(), m[2].str()};
-}
 
 std::vector<std::filesystem::path> fixtures(const std::string& dir) {
   std::vector<std::filesystem::path> out;
@@ -44,10 +28,10 @@ std::vector<std::filesystem::path> fixtures(const std::string& dir) {
 
 // The run's output has the fixture's expected error at its line, and no sign of an abort.
 void expect_located(const icars_test::ProgramRun& r, const std::filesystem::path& fixture, int exit_code) {
-  const auto expected = expectation_of(fixture);
-  ASSERT_FALSE(expected.line.empty()) << fixture << " has no <!-- expect LINE: MESSAGE --> first line";
+  const auto expected = icars_test::expectation_of(fixture);
+  ASSERT_GT(expected.line, 0u) << fixture << " has no <!-- expect LINE: MESSAGE --> first line";
   EXPECT_EQ(r.exit_code, exit_code) << fixture << "\n" << r.output;
-  const auto at = fixture.string() + ":" + expected.line + ":";
+  const auto at = fixture.string() + ":" + std::to_string(expected.line) + ":";
   const auto where = r.output.find(at);
   ASSERT_NE(where, std::string::npos) << "no error at " << at << "\n" << r.output;
   const auto line_end = r.output.find('\n', where);

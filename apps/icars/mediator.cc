@@ -111,7 +111,7 @@ std::vector<std::uint64_t> trace_world(sim::World& world, b::Trace& trace) {
     r.text = fmt::format("{} at ({:.2f}, {:.2f}){}", robot, pose.x, pose.y, moving ? " moving" : "");
     r.with("robot", robot).with("x", pose.x).with("y", pose.y).with("moving", moving);
     trace.record(std::move(r));
-  }));
+  }, sim::World::Listening::observing));
   listeners.push_back(world.on_user([&trace, &world](const sim::UserState& u) {
     const auto posture = std::string(sim::to_string(u.posture));
     b::TraceRecord r;
@@ -123,7 +123,7 @@ std::vector<std::uint64_t> trace_world(sim::World& world, b::Trace& trace) {
     r.with("user", u.user).with("x", u.at.x).with("y", u.at.y).with("room", u.room).with("posture", posture)
         .with("furniture", u.furniture);
     trace.record(std::move(r));
-  }));
+  }, sim::World::Listening::observing));
   return listeners;
 }
 

@@ -23,32 +23,6 @@ const std::string kIcars = ICARS_BINARY;
 const std::string kSource = ICARS_SOURCE_DIR;
 const std::string kPaperHouse = kSource + "/houses/paper_house.xml";
 
-std::vector<std::string> examples() {
-  std::vector<std::string> out;
-  for (const auto& entry : std::filesystem::directory_iterator(kSource + "/examples/policies")) {
-    const auto name = entry.path().filename().string();
-    if (name.starts_with("tree_") && name.ends_with(".xml")) out.push_back(entry.path().string());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
-
-// The example's first <task> element, from its opening line to its closing tag.
-std::string first_task_of(const std::string& text) {
-  const auto open = text.rfind('\n', text.find("<task")) + 1;
-  const auto close = text.find("</task>");
-  return text.substr(open, close + std::string("</task>").size() - open);
-}
-
-// The trace of `icars run POLICY --world paper_house --until UNTIL`.
-std::vector<json> run(const std::string& example, const std::string& until, std::string& output) {
-  auto r = icars_test::run_traced(kIcars, "run " + kSource + "/examples/policies/" + example + " --world " + kPaperHouse +
-                                              " --until " + until + " --speed max --quiet", 300);
-  output = r.run.output;
-  EXPECT_EQ(r.run.exit_code, 0) << r.run.output;
-  return std::move(r.trace);
-}
-
 using icars_test::str;
 
 // The index of the first record of `kind` whose text starts with `text`, or records.size().
@@ -62,28 +36,17 @@ std::size_t find(const std::vector<json>& records, const std::string& kind, cons
 }  // namespace
 
 TEST(TreeExamples, EachIsShownInTheDocsAndValidatesAgainstThePaperHouse) {
-  const auto doc = icars_test::read_file(kSource + "/docs/policy.md");
-  const auto all = examples();
+  const auto all = icars_test::example_policies(kSource, "tree_");
   ASSERT_EQ(all.size(), 8u);  // one per construct
   for (const auto& example : all) {
     SCOPED_TRACE(example);
-    const auto name = std::filesystem::path(example).filename().string();
-    EXPECT_NE(doc.find("(`examples/policies/" + name + "`)"), std::string::npos) << "docs/policy.md does not name it";
-    const auto task = first_task_of(icars_test::read_file(example));
-    EXPECT_NE(doc.find("```xml\n" + task + "\n```"), std::string::npos)
-        << "docs/policy.md does not show, verbatim:\n" << task;
-    const auto validated = icars_test::run_program(kIcars, "validate " + example + " --world " + kPaperHouse, 120);
-    EXPECT_EQ(validated.exit_code, 0) << validated.output;
-    EXPECT_NE(validated.output.find(example + ": ok: policy " + std::filesystem::path(example).stem().string()),
-              std::string::npos)
-        << validated.output;
-    EXPECT_NE(validated.output.find(", 0 warnings"), std::string::npos) << validated.output;
+    icars_test::expect_documented_and_valid(kIcars, kSource, example, "task", kPaperHouse);
   }
 }
 
 TEST(TreeExamples, WhenRunsItsChildOnTheWordsItWaitsFor) {
   std::string output;
-  const auto t = run("tree_when.xml", "19:05", output);
+  const auto t = icars_test::run_policy(kIcars, kSource + "/examples/policies/tree_when.xml", kPaperHouse, "19:05", output);
   const auto n = t.size();
   // "turn on the TV", "channel 5" and "volume up" start nothing; "play music" at 19:00 does.
   const auto started = find(t, "behavior", "MusicMood/Listen/OnMusic/sequential started");
@@ -104,7 +67,7 @@ TEST(TreeExamples, WhenRunsItsChildOnTheWordsItWaitsFor) {
 
 TEST(TreeExamples, TheReactiveSequenceOffersTheTVOnceTheUserSitsDown) {
   std::string output;
-  const auto t = run("tree_reactive_sequence.xml", "18:20", output);
+  const auto t = icars_test::run_policy(kIcars, kSource + "/examples/policies/tree_reactive_sequence.xml", kPaperHouse, "18:20", output);
   const auto n = t.size();
   const auto seated = find(t, "behavior", "OfferTV/Watch/OnSitDown/WhileSeated/Seated succeeded");
   const auto drive = find(t, "behavior", "OfferTV/Watch/OnSitDown/WhileSeated/GoTo started");
@@ -119,7 +82,7 @@ TEST(TreeExamples, TheReactiveSequenceOffersTheTVOnceTheUserSitsDown) {
 
 TEST(TreeExamples, TheReactiveFallbackStopsThePatrolWhenTheUserSitsDown) {
   std::string output;
-  const auto t = run("tree_reactive_fallback.xml", "18:15", output);
+  const auto t = icars_test::run_policy(kIcars, kSource + "/examples/policies/tree_reactive_fallback.xml", kPaperHouse, "18:15", output);
   const auto n = t.size();
   const auto not_seated = find(t, "behavior", "PatrolUntilSeated/Watch/SeatedOrPatrol/Seated failed: 'occupied' is false");
   const auto patrol = find(t, "behavior", "PatrolUntilSeated/Watch/SeatedOrPatrol/PatrolHome started");

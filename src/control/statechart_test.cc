@@ -3,9 +3,7 @@
 // Coordinator from policy text on a SimClock advanced by hand.
 #include <gtest/gtest.h>
 
-#include "icars/clock/sim_clock.h"
-#include "icars/control/collaboration.h"
-#include "icars/control/coordinator.h"
+#include "coordinator_fixture.h"
 
 namespace b = icars::behavior;
 namespace c = icars::control;
@@ -14,48 +12,8 @@ using namespace std::chrono_literals;
 
 namespace {
 
-// Counts live instances, so tests see trees being destroyed.
-std::atomic<int> g_alive{0};
-class Alive final : public b::Behavior {
- public:
-  explicit Alive(const b::Params&) { ++g_alive; }
-  ~Alive() override { --g_alive; }
-};
-
-struct Fixture {
-  Fixture() : runtime(clock), env{runtime, services, trace} {
-    b::register_generic_behaviors(registry);
-    registry.add<Alive>("Alive", "runs until halted");
-    trace.add_sink(log.sink());
-  }
-  std::unique_ptr<c::Coordinator> start(const std::string& xml) {
-    auto parsed = c::parse_policy(xml, "test.xml", registry);
-    auto coordinator = c::PolicyFactory(registry).create(parsed.policy, env);
-    coordinator->start();
-    settle();
-    return coordinator;
-  }
-  void advance(Time d) {
-    clock.advance_by(d);
-    settle();
-  }
-  void settle() { ASSERT_TRUE(runtime.drain(10s)); }
-  std::vector<std::string> texts(const std::string& kind) {
-    std::vector<std::string> out;
-    for (const auto& r : log.of_kind(kind)) out.push_back(r.text);
-    return out;
-  }
-  std::vector<std::string> transitions() { return texts("transition"); }
-
-  icars::SimClock clock{Time{0}};
-  b::Runtime runtime;
-  icars::service::ServiceContainer services;
-  b::Trace trace;
-  b::TraceLog log;
-  b::Environment env;
-  b::BehaviorRegistry registry;
-};
-
+using Fixture = icars_test::CoordinatorFixture;
+using icars_test::g_alive;
 using Names = std::vector<std::string>;
 
 }  // namespace

@@ -8,9 +8,9 @@
 #include <cmath>
 #include <fstream>
 #include <numbers>
-#include <regex>
 #include <sstream>
 
+#include "fixture_expectation.h"
 #include "icars/sim/planner.h"
 
 namespace icars::sim {
@@ -190,29 +190,13 @@ TEST(House, UnreadableFileIsAnErrorWithoutALine) {
   }
 }
 
-// Every fixture starts with <!-- expect LINE: MESSAGE --> naming the error it must produce.
-struct Expectation {
-  std::size_t line;
-  std::string message;
-};
-
-Expectation expectation_of(const std::filesystem::path& file) {
-  std::ifstream in(file);
-  std::string first;
-  std::getline(in, first);
-  std::smatch m;
-  static const std::regex pattern(R"(<!-- expect (\d+): (.*) -->)");
-  if (!std::regex_search(first, m, pattern)) return {0, ""};
-  return {std::stoul(m[1].str()), m[2].str()};
-}
-
 TEST(House, EveryBrokenFixtureGivesItsDocumentedError) {
   std::vector<std::string> seen;
   for (const auto& entry : std::filesystem::directory_iterator(kBad)) {
     if (entry.path().extension() != ".xml") continue;
     const auto name = entry.path().filename().string();
     seen.push_back(entry.path().stem().string());
-    const auto expected = expectation_of(entry.path());
+    const auto expected = icars_test::expectation_of(entry.path());
     ASSERT_GT(expected.line, 0u) << name << " has no <!-- expect LINE: MESSAGE --> first line";
     try {
       load_house(entry.path());

@@ -132,7 +132,12 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   std::unordered_set<std::uint64_t> timers;                   // our pending clock events
   std::mutex delivery_mutex;                                  // held while listeners run
   std::atomic<std::thread::id> delivering_thread;
-  std::uint64_t next_listener = 1;
+  // Listener ids order the calls: observers' ids (from 1) sort before reactors' (from 2^32).
+  std::uint64_t next_observer = 1;
+  std::uint64_t next_listener = std::uint64_t{1} << 32;
+  std::uint64_t listener_id(World::Listening listening) {
+    return listening == World::Listening::observing ? next_observer++ : next_listener++;
+  }
   std::map<std::uint64_t, std::shared_ptr<PoseListener>> pose_listeners;
   std::map<std::uint64_t, std::shared_ptr<UserListener>> user_listeners;
   std::map<std::uint64_t, std::shared_ptr<UtteranceListener>> utterance_listeners;
@@ -526,9 +531,10 @@ void World::turn_robot(const std::string& robot, double theta) {
   s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
 }
 
-std::uint64_t World::on_robot_pose(std::function<void(const std::string&, const Pose&, bool)> fn) {
+std::uint64_t World::on_robot_pose(std::function<void(const std::string&, const Pose&, bool)> fn,
+                                   Listening listening) {
   std::lock_guard lock(impl_->mutex);
-  const auto id = impl_->next_listener++;
+  const auto id = impl_->listener_id(listening);
   impl_->pose_listeners.emplace(id, std::make_shared<Impl::PoseListener>(std::move(fn)));
   return id;
 }
@@ -589,16 +595,16 @@ UserState World::user(const std::string& user) const {
   return state;
 }
 
-std::uint64_t World::on_user(std::function<void(const UserState&)> fn) {
+std::uint64_t World::on_user(std::function<void(const UserState&)> fn, Listening listening) {
   std::lock_guard lock(impl_->mutex);
-  const auto id = impl_->next_listener++;
+  const auto id = impl_->listener_id(listening);
   impl_->user_listeners.emplace(id, std::make_shared<Impl::UserListener>(std::move(fn)));
   return id;
 }
 
-std::uint64_t World::on_utterance(std::function<void(const Utterance&)> fn) {
+std::uint64_t World::on_utterance(std::function<void(const Utterance&)> fn, Listening listening) {
   std::lock_guard lock(impl_->mutex);
-  const auto id = impl_->next_listener++;
+  const auto id = impl_->listener_id(listening);
   impl_->utterance_listeners.emplace(id, std::make_shared<Impl::UtteranceListener>(std::move(fn)));
   return id;
 }

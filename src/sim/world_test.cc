@@ -411,6 +411,39 @@ TEST(World, SayIsHeardAtTheUsersPositionFromTheClock) {
   EXPECT_EQ(heard.size(), 1u);
 }
 
+// A trace registered after the devices still records a change before any device acts on it.
+TEST(World, ObserversHearAChangeBeforeReactorsWhateverTheOrderOfRegistration) {
+  const auto house = paper_house();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<std::string> calls;
+  const auto r1 = world.on_utterance([&](const Utterance&) { calls.push_back("device 1"); });
+  const auto o1 = world.on_utterance([&](const Utterance&) { calls.push_back("trace"); }, World::Listening::observing);
+  const auto r2 = world.on_utterance([&](const Utterance&) { calls.push_back("device 2"); });
+  const auto o2 = world.on_utterance([&](const Utterance&) { calls.push_back("plot"); }, World::Listening::observing);
+  world.say("user1", "hello robot");
+  clock.advance_by(0s);
+  EXPECT_EQ(calls, (std::vector<std::string>{"trace", "plot", "device 1", "device 2"}));
+  world.remove_listener(o1);
+  world.remove_listener(r1);
+  calls.clear();
+  world.say("user1", "again");
+  clock.advance_by(0s);
+  EXPECT_EQ(calls, (std::vector<std::string>{"plot", "device 2"}));
+  world.remove_listener(o2);
+  world.remove_listener(r2);
+
+  std::vector<std::string> poses;
+  const auto device = world.on_robot_pose([&](const std::string&, const Pose&, bool) { poses.push_back("device"); });
+  const auto trace = world.on_robot_pose([&](const std::string&, const Pose&, bool) { poses.push_back("trace"); },
+                                         World::Listening::observing);
+  world.turn_robot(house.robots.at(0).id, 1.0);
+  clock.advance_by(0s);
+  EXPECT_EQ(poses, (std::vector<std::string>{"trace", "device"}));
+  world.remove_listener(device);
+  world.remove_listener(trace);
+}
+
 TEST(World, SoundFadesWithDistanceAndWalls) {
   const auto house = paper_house();
   SimClock clock(house.start_time);

@@ -22,4 +22,23 @@ TracedRun run_traced(const std::string& program, const std::string& args, int ti
 
 std::string read_file(const std::string& path);  // "" when it cannot be read
 
+// --- The example policies of docs/policy.md -------------------------------------------------------
+
+// examples/policies/<prefix>*.xml under the source tree `source`, sorted.
+std::vector<std::string> example_policies(const std::string& source, const std::string& prefix);
+
+// The first <element> of a policy's text, from its opening line to its closing tag.
+std::string element_text(const std::string& text, const std::string& element);
+
+// An example as docs/policy.md presents it: the page names the file and shows `shown` (the
+// example's first <shown_element>) verbatim, and `icars validate` accepts it on `house` with
+// no warning. Failures are reported with gtest's EXPECT.
+void expect_documented_and_valid(const std::string& icars, const std::string& source, const std::string& example,
+                                 const std::string& shown_element, const std::string& house);
+
+// `icars run POLICY --world HOUSE --until UNTIL --speed max --quiet` with its trace; a non-zero
+// exit fails the test. `output` gets what the run printed.
+std::vector<nlohmann::json> run_policy(const std::string& icars, const std::string& policy, const std::string& house,
+                                       const std::string& until, std::string& output);
+
 }  // namespace icars_test

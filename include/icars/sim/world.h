@@ -96,8 +96,13 @@ class World {
   // not change. The heading is normalised to (-pi, pi]; a non-finite one throws
   // std::invalid_argument.
   void turn_robot(const std::string& robot, double theta);
+  // Who hears a change first. Observers (a trace, a plot: they record what happened) hear it
+  // before reactors (devices: they act on it), so the record of a cause is written before any
+  // reaction to it, whichever thread that reaction runs on. In each group, in registration order.
+  enum class Listening { reacting, observing };
   std::uint64_t on_robot_pose(
-      std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn);
+      std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn,
+      Listening listening = Listening::reacting);
 
   // Every robot's state now, ordered by id.
   std::vector<RobotState> robot_states() const;
@@ -119,8 +124,8 @@ class World {
 
   UserState user(const std::string& user) const;  // position exact at clock().now()
   // Called when a user's room, posture or furniture changes (not for every step of a walk).
-  std::uint64_t on_user(std::function<void(const UserState&)> fn);
-  std::uint64_t on_utterance(std::function<void(const Utterance&)> fn);
+  std::uint64_t on_user(std::function<void(const UserState&)> fn, Listening listening = Listening::reacting);
+  std::uint64_t on_utterance(std::function<void(const Utterance&)> fn, Listening listening = Listening::reacting);
   // An utterance by `user` now, at the user's position and nominal loudness (tests, demos);
   // listeners hear it from a clock event at the current time (advance_by(0) delivers it).
   void say(const std::string& user, const std::string& text);
