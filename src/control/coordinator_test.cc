@@ -4,13 +4,12 @@
 #include <gtest/gtest.h>
 
 #include "icars/behavior/composite.h"
-#include "icars/clock/sim_clock.h"
-#include "icars/control/collaboration.h"
-#include "icars/control/coordinator.h"
+#include "coordinator_fixture.h"
 
 #include <unistd.h>
 
 #include <filesystem>
+#include <future>
 #include <fstream>
 
 namespace b = icars::behavior;
@@ -20,60 +19,39 @@ using namespace std::chrono_literals;
 
 namespace {
 
-// Fails after `after`.
-class FailLater final : public b::Behavior {
- public:
-  explicit FailLater(const b::Params& p) : after_(p.duration("after")) {}
+using Fixture = icars_test::CoordinatorFixture;
+using icars_test::g_alive;
 
- protected:
-  void entry() override {
-    after(after_, [this] { fail("gave up"); });
-  }
+// An in-process sensor: publishes Knock events, from whichever thread calls knock().
+struct Knock {
+  std::int32_t n = 0;
+};
+
+}  // namespace
+
+PLANET_EVENT(Knock, n);
+
+namespace {
+
+class Door final : public icars::service::Service {
+ public:
+  Door() : Service("door", "Door", {}) { set_available(true); }
+  std::uint64_t subscribe(std::function<void(const Knock&)> fn) { return listeners_.add(std::move(fn)); }
+  void unsubscribe(std::uint64_t id) { listeners_.remove(id); }
+  void knock(std::int32_t n) { listeners_.notify(Knock{n}); }
 
  private:
-  Time after_;
+  icars::service::Listeners<Knock> listeners_;
 };
 
-// Counts live instances, so tests see trees being destroyed.
-std::atomic<int> g_alive{0};
-class Alive final : public b::Behavior {
+// Passes the door's knocks on to its parent.
+class Hear final : public b::Behavior {
  public:
-  explicit Alive(const b::Params&) { ++g_alive; }
-  ~Alive() override { --g_alive; }
-};
+  explicit Hear(const b::Params&) {}
 
-struct Fixture {
-  Fixture() : runtime(clock), env{runtime, services, trace} {
-    b::register_generic_behaviors(registry);
-    registry.add<FailLater>("FailLater", "fails later", {b::param("after", b::ParamType::duration, "1min", "")});
-    registry.add<Alive>("Alive", "runs until halted");
-    trace.add_sink(log.sink());
-  }
-  std::unique_ptr<c::Coordinator> start(const std::string& xml) {
-    auto parsed = c::parse_policy(xml, "test.xml", registry);
-    auto coordinator = c::PolicyFactory(registry).create(parsed.policy, env);
-    coordinator->start();
-    settle();
-    return coordinator;
-  }
-  void advance(Time d) {
-    clock.advance_by(d);
-    settle();
-  }
-  void settle() { ASSERT_TRUE(runtime.drain(10s)); }
-  std::vector<std::string> transitions() {
-    std::vector<std::string> out;
-    for (const auto& r : log.of_kind("transition")) out.push_back(r.text);
-    return out;
-  }
-
-  icars::SimClock clock{Time{0}};
-  b::Runtime runtime;
-  icars::service::ServiceContainer services;
-  b::Trace trace;
-  b::TraceLog log;
-  b::Environment env;
-  b::BehaviorRegistry registry;
+ protected:
+  void entry() override { listen(require<Door>(of_type("Door"))); }
+  void handle_event(const b::Event& e) override { propagate(e); }
 };
 
 }  // namespace
@@ -273,5 +251,43 @@ TEST(Coordinator, DeviceEventsDriveTransitionsWithGuardsOnTheirProperties) {
   restored("tv", false);
   EXPECT_EQ(coordinator->current(), "Apologizing");
   EXPECT_EQ(f.transitions(), (std::vector<std::string>{"Watching -> Apologizing on DeviceRestored"}));
+  coordinator->stop();
+}
+
+// Run to completion: a knock that arrives right behind the one that moved the statechart is
+// heard by the new state's task, not lost with the old one's — however close behind it comes.
+// The runtime is held while four knocks arrive, so all four wait in its queue together.
+TEST(Coordinator, AnEventRightBehindTheOneThatMovedTheStatechartReachesTheNewState) {
+  Fixture f;
+  f.registry.add<Hear>("Hear", "passes the door's knocks on");
+  auto door = std::make_shared<Door>();
+  f.services.add(door);
+  auto coordinator = f.start(R"xml(
+    <policy name="p">
+      <task name="Idle" events="Come">
+        <interpret name="Listen">
+          <rule when="event == 'Knock' and n == 1" emit="Come"/>
+          <behavior type="Hear"/>
+        </interpret>
+      </task>
+      <task name="Answer" events="Gone">
+        <interpret name="Listen">
+          <rule when="event == 'Knock' and n == 2" emit="Gone"/>
+          <behavior type="Hear"/>
+        </interpret>
+      </task>
+      <statechart initial="Idle">
+        <state name="Idle" task="Idle"><transition event="Come" target="Answering"/></state>
+        <state name="Answering" task="Answer"><transition event="Gone" target="Idle"/></state>
+      </statechart>
+    </policy>)xml");
+  std::promise<void> go;
+  f.runtime.post([held = go.get_future().share()] { held.wait(); });
+  for (const std::int32_t n : {1, 2, 1, 2}) door->knock(n);
+  go.set_value();
+  f.settle();
+  EXPECT_EQ(f.transitions(), (std::vector<std::string>{"Idle -> Answering on Come", "Answering -> Idle on Gone",
+                                                       "Idle -> Answering on Come", "Answering -> Idle on Gone"}));
+  EXPECT_EQ(coordinator->current(), "Idle");
   coordinator->stop();
 }

@@ -154,15 +154,24 @@ class Behavior : public Owner {
   }
   // Every event `sensor` publishes goes to `on_event` (on the runtime, while this activation
   // lasts) instead of handle_event, which then sees only its siblings' and children's events.
+  // Events reach it through the runtime's relay of the sensor (Runtime::Relay): one queued when
+  // this behavior starts listening is heard.
   template <class S, class F>
   void listen(const std::shared_ptr<S>& sensor, F on_event) {
-    auto deliver = guard([this, on_event = std::move(on_event)](const Event& e) mutable {
-      if (running()) on_event(e);
+    const auto relay = runtime().relay(sensor, [sensor = std::weak_ptr<S>(sensor)](std::function<void(Event)> emit) {
+      auto source = sensor.lock();
+      const auto id = source->subscribe([emit = std::move(emit)](const auto& typed) { emit(rename(planet::to_event(typed))); });
+      return std::function<void()>([sensor, id] {
+        if (auto s = sensor.lock()) s->unsubscribe(id);
+      });
     });
-    const auto id = sensor->subscribe([deliver](const auto& typed) mutable {
-      deliver(rename(planet::to_event(typed)));
+    const auto id = relay->add([this, activation = std::weak_ptr<const char>(activation_),
+                               on_event = std::move(on_event)](const Event& e) mutable {
+      if (activation.lock() && running()) on_event(e);
     });
-    on_release([sensor, id] { sensor->unsubscribe(id); });
+    on_release([relay = std::weak_ptr<Runtime::Relay>(relay), id] {
+      if (auto r = relay.lock()) r->remove(id);
+    });
   }
 
   // The Service Framework's events about devices (DeviceLost, DeviceBack, DeviceRestored,
