@@ -4,6 +4,9 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <future>
+
 #include "icars/behavior/composite.h"
 #include "tree_test_support.h"
 
@@ -39,6 +42,21 @@ class Flaky : public b::Behavior {
   Log& log_;
   int failures_;
   int runs_ = 0;
+};
+
+// Succeeds as soon as it starts, counting its runs.
+class Instant : public b::Behavior {
+ public:
+  explicit Instant(std::atomic<long>& runs) : runs_(runs) {}
+
+ protected:
+  void entry() override {
+    ++runs_;
+    succeed();
+  }
+
+ private:
+  std::atomic<long>& runs_;
 };
 
 std::unique_ptr<b::Behavior> wrap(std::unique_ptr<b::Behavior> decorator, std::unique_ptr<b::Behavior> child) {
@@ -119,6 +137,22 @@ TEST(Repeat, ForeverRunsUntilHaltedAndAFailedRunFailsIt) {
   h2.advance(10s);
   EXPECT_EQ(h2.done, b::Status::failed);
   EXPECT_EQ(h2.reason, "act failed on run 1: told to fail");
+}
+
+// Such a tree never lets time pass by itself; the runtime still lets inputs in (here: the halt).
+TEST(Repeat, ForeverAroundAChildThatCompletesAtOnceDoesNotShutOutTheRuntimesInputs) {
+  Harness h;
+  std::atomic<long> runs{0};
+  h.runtime.run([&] {  // returns once the runtime lets inputs in again; never settles
+    h.root = wrap(node<b::RepeatBehavior>("repeat", 0), node<Instant>("instant", runs));
+    h.root->attach(h.env, h, "T");
+    h.root->start();
+  });
+  auto halted = std::async(std::launch::async, [&] { h.runtime.run([&] { h.root->halt(); }); });
+  ASSERT_EQ(halted.wait_for(120s), std::future_status::ready) << "the halt never got in";
+  EXPECT_GT(runs.load(), 1000);
+  EXPECT_EQ(h.status("repeat"), b::Status::halted);
+  h.settle();
 }
 
 TEST(Timeout, CompletesAsItsChildWhenInTime) {

@@ -89,7 +89,11 @@ bool Runtime::run_consequences() {
   constexpr int kMaxInARow = 100'000;
   for (int n = 0; !consequences_.empty(); ++n) {
     if (n == kMaxInARow) {
-      std::fprintf(stderr, "icars: behavior runtime: %d handlers in a row without an input; letting inputs in\n", n);
+      if (!warned_busy_) {
+        warned_busy_ = true;
+        std::fprintf(stderr, "icars: behavior runtime: %d handlers in a row without an input (a tree busy at one "
+                             "instant?); letting inputs in between\n", n);
+      }
       asio::post(io_, [this] {
         if (run_consequences()) release_idle_relays();
       });

@@ -134,6 +134,7 @@ class Runtime {
   };
   std::map<const void*, RelayEntry> relays_;  // runtime thread only
   bool relays_idle_ = false;                  // a relay lost its last listener
+  bool warned_busy_ = false;
   std::thread thread_;
 };
 
