@@ -11,6 +11,15 @@ jobs=$(nproc)
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
 # Each phase's start, in minutes since the run began (docs/architecture.md, first section).
 phase() { echo "test.sh: [$(printf '%4d' $((SECONDS / 60))) min] $*"; }
+# A phase whose tests fail does not stop the run: the later phases (their builds with other
+# compilers and flags, the fuzzers, the benchmarks) still report, and the run fails at the end
+# naming every phase that failed. A build that fails stops the run at once.
+failed=()
+check() {
+  local what="$1"
+  shift
+  "$@" || { failed+=("$what"); echo "test.sh: FAILED: $what" >&2; }
+}
 
 # The generic layers first, built and tested without the home domain (ICARS_WITH_HOME=OFF);
 # then the same tree with it adds only the home and what stands on it, whose tests carry the
@@ -19,28 +28,32 @@ phase "generic layers: build"
 cmake --preset asan -DICARS_WITH_HOME=OFF >/dev/null
 cmake --build build/asan -j "$jobs"
 phase "generic layers: test"
-ctest --preset asan -j "$jobs"
+check "generic layers: test" ctest --preset asan -j "$jobs"
 phase "home: build"
 cmake --preset asan -DICARS_WITH_HOME=ON >/dev/null
 cmake --build build/asan -j "$jobs"
 
 phase "home: test"
-ctest --preset asan -j "$jobs" -L home
+check "home: test" ctest --preset asan -j "$jobs" -L home
 
 phase "fuzz"
-scripts/fuzz.sh "${ICARS_FUZZ_SECONDS:-60}"
+check "fuzz" scripts/fuzz.sh "${ICARS_FUZZ_SECONDS:-60}"
 
 # The tests were compiled (with -Werror) and run above; the release tree builds the rest and
 # runs the benchmarks briefly.
 phase "release: build and benchmark smoke runs"
 cmake --preset release >/dev/null
 cmake --build build/release -j "$jobs"
-build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
-build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null
-build/release/bench/upper_bench --runs 1 >/dev/null
+check "benchmark smoke run: planet_bench" build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
+check "benchmark smoke run: coros_scale" build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null
+check "benchmark smoke run: upper_bench" build/release/bench/upper_bench --runs 1 >/dev/null
 results=$(mktemp -d)
 build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
-  --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; exit 1; }
+  --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; failed+=("benchmark smoke run: icars-compare"); }
 rm -rf "$results"
 phase "done"
+if [ ${#failed[@]} -gt 0 ]; then
+  printf 'test.sh: failed: %s\n' "${failed[@]}"
+  exit 1
+fi
 echo "test.sh: all tests passed"
