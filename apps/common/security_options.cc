@@ -35,6 +35,21 @@ void add_tls_options(CLI::App& app, planet::TlsOptions& tls, Side side) {
   }
 }
 
+void add_device_manager_options(CLI::App& app, DeviceManagerSecurity& security) {
+  add_tls_options(app, security.tls, Side::client);
+  app.add_option("--token-file", security.token_file, "file holding this device manager's token (docs/security.md)")
+      ->check(CLI::ExistingFile);
+}
+
+sigset_t block_stop_signals() {
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  return signals;
+}
+
 std::string read_token_file(const std::string& file) {
   std::ifstream in(file);
   if (!in) throw std::runtime_error(fmt::format("cannot read the token file '{}'", file));

@@ -61,19 +61,10 @@ int main(int argc, char** argv) {
                  "keep the simulated devices' and robots' state in this file (JSON, written atomically "
                  "on every change) and start from it when it exists and matches the house "
                  "(docs/house.md); use the same --epoch when restarting");
-  icars::planet::TlsOptions tls;
-  std::string token_file;
-  icars::app::add_tls_options(app, tls, icars::app::Side::client);
-  app.add_option("--token-file", token_file,
-                 "file holding this device manager's token (docs/security.md)")
-      ->check(CLI::ExistingFile);
+  icars::app::DeviceManagerSecurity security;
+  icars::app::add_device_manager_options(app, security);
   CLI11_PARSE(app, argc, argv);
-
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  const auto signals = icars::app::block_stop_signals();
 
   icars::sim::House house;
   try {
@@ -108,11 +99,11 @@ int main(int argc, char** argv) {
   options.engines = engines;
   options.simulator = simulator;
   options.pun = pun;
-  options.tls = tls;
+  options.tls = security.tls;
   options.state_file = state_file;
-  if (!token_file.empty()) {
+  if (!security.token_file.empty()) {
     try {
-      options.token = icars::app::read_token_file(token_file);
+      options.token = icars::app::read_token_file(security.token_file);
     } catch (const std::exception& e) {
       std::cerr << "icars-device-manager: " << e.what() << "\n";
       return 2;

@@ -23,27 +23,105 @@ DeviceManager::DeviceManager(planet::Communicator& communicator) : communicator_
 
 DeviceManager::~DeviceManager() {
   communicator_.connections().remove_listener(listener_);
-  for (const auto& device : devices_) {
+  // What add() and set_online() left for the io thread checks alive_ first; once the io thread
+  // has run the no-op below, none of it is running or will use this manager.
+  alive_.reset();
+  if (connecting_.load() && !communicator_.in_io_thread() && !communicator_.io().stopped()) {
+    auto flushed = std::make_shared<std::promise<void>>();
+    asio::post(communicator_.io(), [flushed] { flushed->set_value(); });
+    flushed->get_future().wait_for(std::chrono::seconds(10));
+  }
+  for (const auto& device : devices()) {
     for (const auto& c : device->capabilities()) communicator_.adapter().remove(device->path_of(c));
   }
 }
 
-void DeviceManager::add(std::shared_ptr<Device> device) {
-  for (const auto& d : devices_) {
-    if (d->id() == device->id()) {
-      throw std::invalid_argument("device manager already hosts a device '" + device->id() + "'");
+void DeviceManager::add(std::shared_ptr<Device> device, bool online) {
+  {
+    std::lock_guard lock(devices_mutex_);
+    for (const auto& d : devices_) {
+      if (d->id() == device->id()) {
+        throw std::invalid_argument("device manager already hosts a device '" + device->id() + "'");
+      }
     }
+    for (const auto& c : device->capabilities()) {
+      communicator_.adapter().add(device->path_of(c), c.servant);
+    }
+    devices_.push_back(device);
+    if (!online) offline_.insert(device->id());
   }
-  for (const auto& c : device->capabilities()) {
-    communicator_.adapter().add(device->path_of(c), c.servant);
+  // Before connect() the first connection registers it with the others. After, the io thread
+  // (which owns peer_) registers it if the link is up, or the next connection does.
+  if (online && connecting_.load()) {
+    asio::post(communicator_.io(), [this, alive = std::weak_ptr(alive_), device] {
+      if (!alive.expired()) update_one(device, true);
+    });
   }
-  devices_.push_back(std::move(device));
+}
+
+std::vector<std::shared_ptr<Device>> DeviceManager::devices() const {
+  std::lock_guard lock(devices_mutex_);
+  return devices_;
+}
+
+void DeviceManager::set_online(const std::string& device_id, bool online) {
+  std::shared_ptr<Device> device;
+  {
+    std::lock_guard lock(devices_mutex_);
+    for (const auto& d : devices_) {
+      if (d->id() == device_id) device = d;
+    }
+    if (!device) throw std::invalid_argument("device manager hosts no device '" + device_id + "'");
+    if (online ? offline_.erase(device_id) == 0 : !offline_.insert(device_id).second) return;
+  }
+  if (connecting_.load()) {
+    asio::post(communicator_.io(), [this, alive = std::weak_ptr(alive_), device, online] {
+      if (!alive.expired()) update_one(device, online);
+    });
+  }
+}
+
+bool DeviceManager::online(const std::string& device_id) const {
+  std::lock_guard lock(devices_mutex_);
+  return !offline_.contains(device_id);
+}
+
+void DeviceManager::update_one(const std::shared_ptr<Device>& device, bool online) {
+  if (!peer_) return;  // not connected yet: the first connection registers it
+  const auto connection = peer_->connection();
+  if (!connection) return;  // down: the reconnection's round registers it (if online then)
+  send_one(connection, device, online);
+}
+
+void DeviceManager::send_one(const std::shared_ptr<planet::Connection>& connection,
+                             const std::shared_ptr<Device>& device, bool online) {
+  planet::Proxy registry(communicator_, connection, std::string(kRegistryPath));
+  const auto done = [this, alive = std::weak_ptr(alive_), id = device->id(),
+                     online](std::exception_ptr e) {
+    if (alive.expired()) return;
+    if (!e) {
+      communicator_.log().info("{} device {} with the server",
+                               online ? "registered" : "unregistered", id);
+      return;
+    }
+    const auto error = planet::describe(e);
+    communicator_.log().error("{} device {} failed: {}", online ? "registering" : "unregistering",
+                              id, error);
+    std::lock_guard lock(mutex_);
+    last_error_ = id + ": " + error;
+  };
+  if (online) {
+    registry.async_call(df::DeviceRegistry::register_device, {device->info()}, done);
+  } else {
+    registry.async_call(df::DeviceRegistry::unregister_device, {device->id()}, done);
+  }
 }
 
 void DeviceManager::connect(const std::string& host, std::uint16_t port,
                             planet::ReconnectPolicy policy) {
   // The peer is created on this thread while the io thread may already report it connected;
   // running the assignment on the io thread orders it before that event is handled.
+  connecting_ = true;
   std::promise<void> stored;
   asio::post(communicator_.io(), [&] {
     peer_ = communicator_.connect(host, port, policy);
@@ -53,19 +131,28 @@ void DeviceManager::connect(const std::string& host, std::uint16_t port,
 }
 
 void DeviceManager::register_all(std::shared_ptr<planet::Connection> connection) {
-  auto remaining = std::make_shared<std::size_t>(devices_.size());
+  std::vector<std::shared_ptr<Device>> online;
+  std::vector<std::shared_ptr<Device>> offline;
+  {
+    std::lock_guard lock(devices_mutex_);
+    for (const auto& d : devices_) (offline_.contains(d->id()) ? offline : online).push_back(d);
+  }
+  // A device that went offline while the link was down may still be registered (as lost): the
+  // registry forgets it now rather than after its forget_after.
+  for (const auto& device : offline) send_one(connection, device, false);
+  auto remaining = std::make_shared<std::size_t>(online.size());
   auto failed = std::make_shared<bool>(false);
   planet::Proxy registry(communicator_, connection, std::string(kRegistryPath));
-  if (devices_.empty()) {
+  if (online.empty()) {
     std::lock_guard lock(mutex_);
     ++rounds_;
     changed_.notify_all();
     return;
   }
-  for (const auto& device : devices_) {
+  for (const auto& device : online) {
     registry.async_call(
         df::DeviceRegistry::register_device, {device->info()},
-        [this, remaining, failed, id = device->id()](std::exception_ptr e) {
+        [this, remaining, failed, count = online.size(), id = device->id()](std::exception_ptr e) {
           if (e) {
             *failed = true;
             const auto error = planet::describe(e);
@@ -74,7 +161,7 @@ void DeviceManager::register_all(std::shared_ptr<planet::Connection> connection)
             last_error_ = id + ": " + error;
           }
           if (--*remaining == 0 && !*failed) {
-            communicator_.log().info("registered {} devices with the server", devices_.size());
+            communicator_.log().info("registered {} devices with the server", count);
             std::lock_guard lock(mutex_);
             ++rounds_;
             changed_.notify_all();

@@ -273,6 +273,47 @@ TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
   sf.reset();
 }
 
+// A device added after the manager connected is registered at once; one set offline leaves the
+// registry (its services go), stays out of the registration round after the server restarts,
+// and is registered again when set online.
+TEST(DeviceManagerTest, RegistersDevicesAddedLaterAndKeepsOfflineOnesOut) {
+  auto server = std::make_unique<p::Communicator>();
+  auto sf = std::make_unique<service::ServiceFramework>(*server, adaptors(), service::RegistryOptions{}, std::vector{composer()});
+  const auto port = server->listen("127.0.0.1", 0);
+  DeviceSide devices(port);
+  ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
+  const auto lights = [&] { return sf->container().find(ServiceQuery::of_type("LightControl").available()).size(); };
+  const auto tvs = [&] { return sf->container().find(ServiceQuery::of_type("TVControl").available()).size(); };
+
+  auto desk = std::make_shared<device::Device>("desk_light", "Light", "office");
+  desk->add("light", std::make_shared<FakeLight>());
+  devices.manager.add(desk);
+  ASSERT_TRUE(planet_test::wait_until([&] { return lights() == 2; }));
+  auto porch = std::make_shared<device::Device>("porch_light", "Light", "porch");
+  porch->add("light", std::make_shared<FakeLight>());
+  devices.manager.add(porch, /*online=*/false);
+  EXPECT_FALSE(devices.manager.online("porch_light"));
+
+  devices.manager.set_online("tv", false);
+  ASSERT_TRUE(planet_test::wait_until([&] { return tvs() == 0; }));
+  EXPECT_TRUE(sf->container().find(ServiceQuery::of_type("TVControl")).empty()) << "unregistered, not only unavailable";
+  EXPECT_THROW(devices.manager.set_online("no_such_device", true), std::invalid_argument);
+
+  sf.reset();  // the server restarts: the round registers the online devices only
+  server.reset();
+  server = std::make_unique<p::Communicator>();
+  sf = std::make_unique<service::ServiceFramework>(*server, adaptors(), service::RegistryOptions{}, std::vector{composer()});
+  ASSERT_EQ(server->listen("127.0.0.1", port), port);
+  ASSERT_TRUE(devices.manager.wait_registered(2, 30s)) << devices.manager.last_error();
+  EXPECT_EQ(lights(), 2u) << "bedroom_light and desk_light, not porch_light";
+  EXPECT_EQ(tvs(), 0u);
+
+  devices.manager.set_online("tv", true);
+  devices.manager.set_online("porch_light", true);
+  ASSERT_TRUE(planet_test::wait_until([&] { return tvs() == 1 && lights() == 3; }));
+  sf.reset();
+}
+
 TEST_F(SF, BadRegistrationsAreRefusedWithAReason) {
   p::Communicator client;
   auto peer = client.connect("127.0.0.1", port_);

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -29,10 +30,21 @@ class DeviceManager {
   DeviceManager(const DeviceManager&) = delete;
   DeviceManager& operator=(const DeviceManager&) = delete;
 
-  // Serves the device's capabilities; call before connect(). Throws std::invalid_argument on a
-  // duplicate device id.
-  void add(std::shared_ptr<Device> device);
-  const std::vector<std::shared_ptr<Device>>& devices() const { return devices_; }
+  // Serves the device's capabilities. Before connect() the device is registered with the
+  // others on the first connection; added later (from any thread), it is registered at once
+  // when the link is up. An offline device (`online` false) is served but not registered until
+  // set_online(id, true). Throws std::invalid_argument on a duplicate device id.
+  void add(std::shared_ptr<Device> device, bool online = true);
+  std::vector<std::shared_ptr<Device>> devices() const;
+
+  // Takes a device out of the server's registry while it cannot serve (a real device that went
+  // offline) and puts it back: offline, it is unregistered now (its services leave the server)
+  // and left out of the registration rounds of later reconnections (which unregister it, in
+  // case it went offline while the link was down); online again, it is registered now. From any
+  // thread; the calls take effect in order. Throws std::invalid_argument for an id this manager
+  // does not host.
+  void set_online(const std::string& device_id, bool online);
+  bool online(const std::string& device_id) const;
 
   // Connects to the server and keeps the link up; every (re)connection registers all devices.
   void connect(const std::string& host, std::uint16_t port, planet::ReconnectPolicy policy = {});
@@ -47,10 +59,18 @@ class DeviceManager {
 
  private:
   void register_all(std::shared_ptr<planet::Connection> connection);
+  // On the io thread: registers (or unregisters) one device over the current link, if it is up.
+  void update_one(const std::shared_ptr<Device>& device, bool online);
+  void send_one(const std::shared_ptr<planet::Connection>& connection,
+                const std::shared_ptr<Device>& device, bool online);
 
   planet::Communicator& communicator_;
+  mutable std::mutex devices_mutex_;
   std::vector<std::shared_ptr<Device>> devices_;
-  std::shared_ptr<planet::Peer> peer_;
+  std::set<std::string> offline_;        // ids of devices not to register now
+  std::shared_ptr<planet::Peer> peer_;   // set and read on the io thread
+  std::atomic<bool> connecting_{false};  // connect() was called
+  std::shared_ptr<const char> alive_ = std::make_shared<const char>('\0');  // reset when destroyed
   std::uint64_t listener_ = 0;
 
   mutable std::mutex mutex_;

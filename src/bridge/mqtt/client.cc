@@ -188,6 +188,11 @@ std::string Client::last_error() const {
   return last_error_;
 }
 
+bool Client::refused() const {
+  std::lock_guard lock(mutex_);
+  return refused_;
+}
+
 // --- libmosquitto's callbacks, on its network thread -----------------------------------------
 
 void Client::handle_connect(struct ::mosquitto* mosq, void* obj, int rc) {

@@ -100,6 +100,7 @@ class Client {
   bool wait_connected(std::chrono::milliseconds timeout) const;
   std::uint64_t connections() const;  // how many times a connection was made
   std::string last_error() const;     // why the last connection was lost or refused
+  bool refused() const;               // the broker refused the client: it does not retry
 
  private:
   static void handle_connect(struct ::mosquitto*, void* self, int rc);
