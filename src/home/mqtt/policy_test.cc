@@ -1,0 +1,156 @@
+// A collaboration policy driving a real home's MQTT devices through a mediating server: a real
+// Mosquitto broker, the zigbee2mqtt/Tasmota-like fleet, MqttDevices registering them, and a
+// MediatingServer on the wall clock running a policy. Motion in the hall (an MQTT binary sensor)
+// moves the statechart, whose task switches the living-room lamp (an MQTT light) on — done only
+// once the lamp's state topic confirmed it. With the lamp offline, the same task fails and the
+// policy's `failed` transition takes over.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "broker.h"
+#include "child_process.h"
+#include "fleet.h"
+#include "icars/clock/wall_clock.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/behaviors.h"
+#include "icars/home/mqtt/entity_devices.h"
+#include "icars/home/services.h"
+#include "icars/server/mediating_server.h"
+
+namespace icars::home::mqtt {
+namespace {
+
+using namespace std::chrono_literals;
+namespace bm = icars::bridge::mqtt;
+namespace fs = std::filesystem;
+
+constexpr const char* kPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="hall_light">
+  <task name="Watch" events="Motion">
+    <interpret name="Hall">
+      <rule when="event == 'MotionEvent' and motion" emit="Motion"/>
+      <behavior type="Sense" service="MotionSensor" room="hallway"/>
+    </interpret>
+  </task>
+  <task name="Light">
+    <behavior type="SetLights" on="true" rooms="living_room"/>
+  </task>
+  <task name="Trouble">
+    <behavior type="Wait" duration="1h"/>
+  </task>
+  <statechart initial="Watching">
+    <transition event="failed" target="InTrouble"/>
+    <state name="Watching" task="Watch"><transition event="Motion" target="Lighting"/></state>
+    <state name="Lighting" task="Light"><transition event="done" target="Watching"/></state>
+    <state name="InTrouble" task="Trouble"/>
+  </statechart>
+</policy>
+)xml";
+
+class MqttPolicy : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("icars_mqtt_policy_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+    std::ofstream(dir_ / "hall_light.xml") << kPolicy;
+    server::ServerOptions o;
+    o.adaptors = adaptors();
+    o.composers = {composer()};
+    o.behaviors = behavior_registry();
+    o.policy_dir = dir_.string();
+    server_ = std::make_unique<server::MediatingServer>(std::move(o));
+    port_ = server_->listen();
+  }
+  void TearDown() override {
+    server_.reset();
+    fs::remove_all(dir_);
+  }
+
+  // The transitions the policy took, as the trace says them.
+  std::vector<std::string> transitions() {
+    std::lock_guard lock(mutex_);
+    return transitions_;
+  }
+  bool took(const std::string& transition) {
+    const auto all = transitions();
+    return std::find(all.begin(), all.end(), transition) != all.end();
+  }
+
+  fs::path dir_;
+  std::unique_ptr<server::MediatingServer> server_;
+  std::uint16_t port_ = 0;
+  WallClock clock_;
+  std::mutex mutex_;
+  std::vector<std::string> transitions_;
+};
+
+TEST_F(MqttPolicy, MotionOnAnMqttSensorSwitchesAnMqttLampAndAnOfflineLampFailsTheTask) {
+  bridge_test::Broker broker;
+  mqtt_test::Fleet fleet(broker.port());
+  bm::ClientOptions client_options;
+  client_options.port = broker.port();
+  client_options.client_id = "icars-bridge";
+  bm::Client client(client_options);
+  planet::Communicator manager_side;
+  device::DeviceManager manager(manager_side);
+  MqttDevicesOptions options;
+  options.placements[mqtt_test::Fleet::unique_id("living_lamp")] = Placement{"living_light", "living_room", ""};
+  MqttDevices devices(client, manager, options);
+  client.start();
+  manager.connect("127.0.0.1", port_);
+  fleet.start();
+  auto& c = server_->container();
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    return c.find(service::ServiceQuery::of_type("LightControl").in_room("living_room").available()).size() == 1 &&
+           c.find(service::ServiceQuery::of_type("MotionSensor").in_room("hallway").available()).size() == 1;
+  }, 30s));
+
+  server_->trace().add_sink([this](const behavior::TraceRecord& r) {
+    if (r.kind != "transition") return;
+    std::lock_guard lock(mutex_);
+    transitions_.push_back(r.text);
+  });
+  server_->use_clock(clock_);
+  server_->run_policy("hall_light");
+  // Someone walks through the hall, every 40th look (200 ms): the sensor goes off and on.
+  int looks = 0;
+  const auto walk_through = [&] {
+    if (looks++ % 40 != 0) return;
+    fleet.set_sensor("hall_motion", false);
+    fleet.set_sensor("hall_motion", true);
+  };
+
+  // Motion in the hall: the lamp goes on, and the task is done only once the lamp said so.
+  // (The sensor is toggled until the Sense behavior, which subscribes as the policy starts, hears it.)
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    walk_through();
+    return took("Lighting -> Watching on done");
+  }, 60s)) << ::testing::PrintToString(transitions());
+  EXPECT_EQ(fleet.on("living_lamp"), true);
+  EXPECT_TRUE(took("Watching -> Lighting on Motion"));
+
+  // The lamp goes offline: its service leaves the server, and the next motion fails the task.
+  fleet.set_online("living_lamp", false);
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    return c.find(service::ServiceQuery::of_type("LightControl").in_room("living_room").available()).empty();
+  }, 30s));
+  looks = 0;
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    walk_through();
+    return server_->coordinator() && server_->coordinator()->current() == "InTrouble";
+  }, 60s)) << ::testing::PrintToString(transitions());
+  const auto all = transitions();
+  ASSERT_FALSE(all.empty());
+  EXPECT_NE(all.back().find("Lighting -> InTrouble on failed"), std::string::npos) << all.back();
+  EXPECT_NE(all.back().find("no available light"), std::string::npos) << all.back();
+  server_->stop();
+}
+
+}  // namespace
+}  // namespace icars::home::mqtt
