@@ -116,8 +116,13 @@ struct Reader {
   std::string topic(const char* key) const { return checked_topic(key, string(key)); }
   std::string checked_topic(const char* key, std::string t) const {
     if (t.empty()) return t;
-    if (t.front() == '~') t = base + t.substr(1);
-    if (t.back() == '~') t = t.substr(0, t.size() - 1) + base;
+    // `~` at the start or (otherwise) at the end of the value stands for the base topic; a lone
+    // `~` is the base itself, and with no base it is an empty topic (refused below).
+    if (t.front() == '~') {
+      t = base + t.substr(1);
+    } else if (t.back() == '~') {
+      t = t.substr(0, t.size() - 1) + base;
+    }
     if (mosquitto_pub_topic_check(t.c_str()) != MOSQ_ERR_SUCCESS) {
       throw Bad(fmt::format("'{}' is '{}': not a topic one can publish to (wildcards '+' or '#', or empty)", key, t));
     }

@@ -131,6 +131,9 @@ TEST(Discovery, EveryBadConfigIsAnErrorNamingTheTopicAndTheReason) {
       {R"({"command_topic": {"a": 1}})", "'command_topic' must be a string, not object"},
       {R"({"command_topic": "a/set", "brightness_scale": -3})", "'brightness_scale' must be a positive integer"},
       {R"({"command_topic": "a/set", "device": "lamp"})", "'device' must be an object"},
+      // `~` standing for a base topic that is not there: no command topic.
+      {R"({"command_topic": "~"})", "a light needs a command topic ('command_topic')"},
+      {R"({"~": "", "cmd_t": "~"})", "a light needs a command topic ('command_topic')"},
   };
   for (const auto& [payload, reason] : cases) {
     const auto r = read_discovery(t, payload);
