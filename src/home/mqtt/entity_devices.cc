@@ -342,18 +342,22 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
   }
 
   void on_message(const bm::Message& m) {
-    std::shared_lock alive(alive_mutex_);
-    if (closed_) return;
-    try {
-      if (bm::parse_discovery_topic(m.topic, options_.discovery_prefix)) {
-        on_config(m);
-      } else {
-        on_state(m);
+    {
+      std::shared_lock alive(alive_mutex_);
+      if (!closed_) {
+        try {
+          if (bm::parse_discovery_topic(m.topic, options_.discovery_prefix)) {
+            on_config(m);
+          } else {
+            on_state(m);
+          }
+        } catch (const std::exception& e) {
+          // Never lost silently; the bridge goes on with the next message.
+          problem(fmt::format("{}: {}", m.topic, e.what()));
+        }
       }
-    } catch (const std::exception& e) {
-      // Never lost silently; the bridge goes on with the next message.
-      problem(fmt::format("{}: {}", m.topic, e.what()));
     }
+    if (options_.handled) options_.handled(m);
   }
 
   // --- Discovery -----------------------------------------------------------------------------

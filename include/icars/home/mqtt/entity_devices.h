@@ -65,6 +65,11 @@ struct MqttDevicesOptions {
   // Time stamps of sensor events, in ms; default: the system clock since the epoch.
   std::function<std::int64_t()> now_ms;
   std::shared_ptr<spdlog::logger> logger;  // default: a stderr logger named "mqtt-devices"
+  // Told after each message from the broker was handled (the device events it caused
+  // published), on the client's network thread, also for messages the bridge had no use for.
+  // A simulated house in lock-step in this process waits for it before its clock moves
+  // (home::SimulatedMqttDevices::handled).
+  std::function<void(const bridge::mqtt::Message&)> handled;
 };
 
 // One entity the bridge made a device of.
