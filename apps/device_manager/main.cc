@@ -13,6 +13,8 @@
 // different times run on the same simulated time. With --state, the simulated actuators and
 // robots keep their state in FILE and come back from it when the manager restarts, even after
 // SIGKILL (docs/house.md, "State file"); it prints "STATE restored|new|rejected FILE" first.
+// With --mqtt, the house's MQTT devices are simulated on that broker (docs/house.md, "MQTT
+// devices") for an icars-mqtt-bridge to bring in.
 // Stops on SIGINT/SIGTERM.
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -61,6 +63,14 @@ int main(int argc, char** argv) {
                  "keep the simulated devices' and robots' state in this file (JSON, written atomically "
                  "on every change) and start from it when it exists and matches the house "
                  "(docs/house.md); use the same --epoch when restarting");
+  std::string mqtt;
+  app.add_option("--mqtt", mqtt,
+                 "MQTT broker, mqtt://HOST[:PORT]: the house's MQTT devices (<device mqtt=...>) are simulated "
+                 "there as zigbee2mqtt serves real ones, for icars-mqtt-bridge --house to bring in (without "
+                 "it they are not hosted)");
+  std::string mqtt_ca_file;
+  app.add_option("--mqtt-ca-file", mqtt_ca_file, "CA the mqtts:// broker's certificate is checked against")
+      ->check(CLI::ExistingFile);
   icars::app::DeviceManagerSecurity security;
   icars::app::add_device_manager_options(app, security);
   CLI11_PARSE(app, argc, argv);
@@ -101,6 +111,23 @@ int main(int argc, char** argv) {
   options.pun = pun;
   options.tls = security.tls;
   options.state_file = state_file;
+  if (!mqtt.empty()) {
+    try {
+      const auto uri = icars::bridge::mqtt::parse_broker_uri(mqtt);
+      if (uri.tls != !mqtt_ca_file.empty()) {
+        throw std::invalid_argument(uri.tls ? "--mqtt " + mqtt + " needs --mqtt-ca-file"
+                                            : std::string("--mqtt-ca-file needs an mqtts:// broker"));
+      }
+      options.mqtt.emplace();
+      options.mqtt->broker.host = uri.host;
+      options.mqtt->broker.port = uri.port;
+      options.mqtt->broker.ca_file = mqtt_ca_file;
+      options.mqtt->broker.validate();
+    } catch (const std::exception& e) {
+      std::cerr << "icars-device-manager: --mqtt " << e.what() << "\n";
+      return 2;
+    }
+  }
   if (!security.token_file.empty()) {
     try {
       options.token = icars::app::read_token_file(security.token_file);

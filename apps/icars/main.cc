@@ -178,6 +178,16 @@ int main(int argc, char** argv) {
   run_cmd->add_flag("--external", run.external, "device managers run as separate processes");
   run_cmd->add_flag("--quiet", run.quiet, "print only the summary");
   run_cmd->add_option("--policies", run.policy_dir, "the policy repository directory")->capture_default_str();
+  run_cmd->add_option("--mqtt", run.mqtt,
+                      "MQTT broker, mqtt://HOST[:PORT] or mqtts://HOST[:PORT]: the house's MQTT devices "
+                      "(<device mqtt=...>) are simulated there and brought in through an MQTT bridge");
+  run_cmd->add_option("--mqtt-ca-file", run.mqtt_ca_file, "CA the mqtts:// broker's certificate is checked against")
+      ->check(CLI::ExistingFile);
+  run_cmd->add_flag("--publish-to-home-assistant", run.home_assistant,
+                    "publish the mediator to Home Assistant on the --mqtt broker: the policy's state and task, "
+                    "a select of policies, a button per policy event, the robots and the devices");
+  run_cmd->add_option("--ha-node-id", run.ha_node_id,
+                      "the Home Assistant device the mediator is published as (default: icars_<house name>)");
   icars::app::add_tls_options(*run_cmd, run.tls, icars::app::Side::server);
   run_cmd->add_option("--access", run.access_file,
                       "access file: who may connect and what each may call (docs/security.md)")

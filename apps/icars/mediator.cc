@@ -16,10 +16,12 @@
 #include <vector>
 
 #include "announcement.h"
+#include "embedded_mqtt.h"
 #include "icars/clock/lock_step.h"
 #include "icars/control/policy_check.h"
 #include "icars/home/behaviors.h"
 #include "icars/home/clock_follower.h"
+#include "icars/home/mqtt/home_assistant.h"
 #include "icars/home/sim/house_vocabulary.h"
 #include "icars/home/sim/simulated_house.h"
 #include "icars/report/recorders.h"
@@ -157,6 +159,39 @@ int run(const RunOptions& options) {
   } catch (const std::exception& e) {
     return fail(2, e.what());
   }
+  // The house's MQTT devices: simulated on --mqtt and bridged in, or (--external) brought by
+  // an icars-mqtt-bridge of a real home.
+  const bool mqtt_house = std::any_of(house.devices.begin(), house.devices.end(),
+                                      [](const sim::DeviceSpec& d) { return !d.mqtt.empty(); });
+  std::optional<bridge::mqtt::ClientOptions> broker;
+  try {
+    if (!options.mqtt.empty()) {
+      const auto uri = bridge::mqtt::parse_broker_uri(options.mqtt);
+      if (uri.tls != !options.mqtt_ca_file.empty()) {
+        throw std::invalid_argument(uri.tls ? "--mqtt " + options.mqtt + " needs --mqtt-ca-file"
+                                            : std::string("--mqtt-ca-file needs an mqtts:// broker"));
+      }
+      broker.emplace();
+      broker->host = uri.host;
+      broker->port = uri.port;
+      broker->ca_file = options.mqtt_ca_file;
+      broker->validate();
+    }
+    if (options.home_assistant && !broker) {
+      throw std::invalid_argument("--publish-to-home-assistant needs --mqtt mqtt://BROKER[:PORT]");
+    }
+    if (mqtt_house && !options.external) {
+      home::mqtt_devices(house);  // types that cannot be simulated over MQTT, at their line
+      if (!broker) {
+        throw std::invalid_argument(fmt::format(
+            "{}: the house has MQTT devices (<device mqtt=\"...\">): give --mqtt mqtt://BROKER[:PORT] to "
+            "simulate them on a broker, or run --external with icars-mqtt-bridge for a real home's",
+            house.source));
+      }
+    }
+  } catch (const std::exception& e) {
+    return fail(2, e.what());
+  }
   server::ServerOptions server_options;
   server_options.listen = options.listen;
   server_options.policy_dir = options.policy_dir;
@@ -201,12 +236,17 @@ int run(const RunOptions& options) {
   const auto stop_at = stop_time(house.start_time, *until, options.days);
   // The embedded house authenticates with a token made for this run.
   const std::string house_token = options.access_file.empty() ? "" : p::random_token();
+  const std::string bridge_token = options.access_file.empty() ? "" : p::random_token();
   if (!options.access_file.empty()) {
     try {
       auto access = std::make_shared<p::AccessPolicy>(p::AccessPolicy::load(options.access_file));
       if (!options.external) {
         access->add({"house-devices", p::sha256_hex(house_token), "",
                      {std::string(device::kRegistryPath), "/sf/listeners/*"}, {"*"}, house.devices.size() + 16});
+        if (mqtt_house) {
+          access->add({"mqtt-bridge", p::sha256_hex(bridge_token), "",
+                       {std::string(device::kRegistryPath), "/sf/listeners/*"}, {"*"}, house.devices.size() + 16});
+        }
       }
       server_options.planet.access = std::move(access);
     } catch (const std::exception& e) {
@@ -253,6 +293,7 @@ int run(const RunOptions& options) {
 
   // --- The house: simulated device managers in this process, or elsewhere. -------------------
   std::unique_ptr<home::SimulatedHouse> simulated;
+  std::unique_ptr<EmbeddedMqttBridge> mqtt_bridge;  // goes before the house whose clock it reads
   std::unique_ptr<SimClock> own_clock;
   std::vector<std::uint64_t> world_listeners;
   SimClock* clock = nullptr;
@@ -260,15 +301,35 @@ int run(const RunOptions& options) {
     auto house_options = embedded_house(options, trace, house_token);
     house_options.device_types = registries->sim_devices;
     house_options.activity = activity;
+    if (mqtt_house) {
+      house_options.mqtt.emplace();
+      house_options.mqtt->broker = *broker;
+    }
     try {
       simulated = std::make_unique<home::SimulatedHouse>(house, std::move(house_options));
     } catch (const sim::HouseError& e) {  // a device's parameters its type cannot use
       return fail(2, e.what());
     }
     world_listeners = trace_world(simulated->world(), trace);
-    simulated->start("127.0.0.1", bound);
+    try {
+      simulated->start("127.0.0.1", bound);
+    } catch (const std::exception& e) {  // the broker of the MQTT devices cannot be reached
+      return fail(1, e.what());
+    }
     if (!simulated->manager().wait_registered(1, 30s)) {
       return fail(1, fmt::format("the house's devices did not register: {}", simulated->manager().last_error()));
+    }
+    if (mqtt_house) {
+      EmbeddedMqttOptions bridge_options;
+      bridge_options.broker = *broker;
+      bridge_options.token = bridge_token;
+      bridge_options.tls = options.tls;
+      bridge_options.activity = activity;
+      bridge_options.logger = spdlog::default_logger();
+      mqtt_bridge = std::make_unique<EmbeddedMqttBridge>(house, simulated->clock(), std::move(bridge_options));
+      mqtt_bridge->start("127.0.0.1", bound, simulated->mqtt());
+      std::string why;
+      if (!mqtt_bridge->wait_registered(server->services().registry(), 30s, why)) return fail(1, why);
     }
     clock = &simulated->clock();
     std::printf("[icars] %zu devices registered, %zu services\n", simulated->manager().devices().size(),
@@ -293,6 +354,34 @@ int run(const RunOptions& options) {
   if (own_clock) follower = std::make_unique<home::ClockFollower>(*own_clock, server->container());
   report::ServiceRecorder heard(server->container(), trace, options.external);
   server->use_clock(*clock);
+  // Home Assistant's view, from the policy's start on.
+  std::unique_ptr<home::mqtt::HomeAssistantPublisher> home_assistant;
+  if (options.home_assistant) {
+    home::mqtt::HomeAssistantOptions ha;
+    ha.node_id = options.ha_node_id;
+    if (ha.node_id.empty()) {
+      ha.node_id = "icars_" + house.name;
+      for (char& ch : ha.node_id) {
+        if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-') ch = '_';
+      }
+    }
+    ha.name = "ICARS " + house.name;
+    for (const auto& d : house.devices) ha.devices.push_back({d.id, d.type, d.room, d.carrier});
+    for (const auto& r : house.robots) ha.robots.push_back({r.id, r.start.x, r.start.y});
+    ha.room_at = [&house](double x, double y) {
+      const auto* room = house.room_at({x, y});
+      return room ? room->name : std::string();
+    };
+    ha.logger = spdlog::default_logger();
+    try {
+      home_assistant = std::make_unique<home::mqtt::HomeAssistantPublisher>(*server, *broker, std::move(ha));
+      home_assistant->start();
+    } catch (const std::invalid_argument& e) {  // --ha-node-id
+      return fail(2, e.what());
+    } catch (const std::exception& e) {  // the broker cannot be reached
+      return fail(1, e.what());
+    }
+  }
 
   // --- Behaviors, tasks and the Coordinator. -------------------------------------------------------
   if (follower) {
@@ -342,6 +431,8 @@ int run(const RunOptions& options) {
   // The run is over: the house's devices going away with it are no outage to report.
   device_events.stop();
   spdlog::set_level(spdlog::level::err);
+  if (mqtt_bridge) mqtt_bridge->stop();
+  if (home_assistant) home_assistant->stop();
   if (simulated) {
     for (const auto id : world_listeners) simulated->world().remove_listener(id);
   }

@@ -27,6 +27,14 @@ struct RunOptions {
   planet::TlsOptions tls;      // TLS of the listener (docs/security.md)
   std::string access_file;     // who may connect and call what; empty: anyone (loopback only)
   std::vector<std::string> plugins;  // shared libraries adding behavior, adaptor, composer types
+  // mqtt://HOST[:PORT] or mqtts://HOST[:PORT]: the house's MQTT devices (docs/house.md) are
+  // simulated on this broker and brought in by an MQTT bridge in this process.
+  std::string mqtt;
+  std::string mqtt_ca_file;    // the CA an mqtts:// broker's certificate is checked against
+  // Publish the mediator to Home Assistant on the --mqtt broker (docs/mqtt.md, "Home
+  // Assistant's view"), as the device `ha_node_id` (default: icars_<house name>).
+  bool home_assistant = false;
+  std::string ha_node_id;
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

@@ -4,7 +4,7 @@
 // mediating server, like icars-device-manager does for the simulated house (docs/mqtt.md).
 //
 //   icars-mqtt-bridge --broker mqtt://127.0.0.1:1883 --server 127.0.0.1:7000
-//                     [--placements FILE] [--username U --password-file F] [--ca-file CA]
+//                     [--placements FILE] [--house HOUSE] [--username U --password-file F] [--ca-file CA]
 //
 // Prints "BROKER CONNECTED" and "BROKER DOWN <reason>" as the broker link comes and goes,
 // "DEVICE <id> <type> <room> online|offline" as devices are discovered and change, and
@@ -27,6 +27,7 @@
 #include "icars/device/device_manager.h"
 #include "icars/home/mqtt/entity_devices.h"
 #include "icars/home/mqtt/placements.h"
+#include "icars/home/sim/sim_mqtt_devices.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/endpoint.h"
 #include "security_options.h"
@@ -35,44 +36,6 @@ namespace mqtt = icars::bridge::mqtt;
 namespace hm = icars::home::mqtt;
 
 namespace {
-
-// "mqtt://host[:port]" (1883) or "mqtts://host[:port]" (8883, TLS).
-struct BrokerUri {
-  std::string host;
-  int port = 1883;
-  bool tls = false;
-};
-
-BrokerUri parse_broker(const std::string& uri) {
-  BrokerUri b;
-  std::string rest;
-  if (uri.starts_with("mqtt://")) {
-    rest = uri.substr(7);
-  } else if (uri.starts_with("mqtts://")) {
-    rest = uri.substr(8);
-    b.tls = true;
-    b.port = 8883;
-  } else {
-    throw std::invalid_argument("'" + uri + "' is not mqtt://HOST[:PORT] or mqtts://HOST[:PORT]");
-  }
-  const auto colon = rest.rfind(':');
-  if (colon != std::string::npos) {
-    const auto port = rest.substr(colon + 1);
-    rest = rest.substr(0, colon);
-    try {
-      std::size_t used = 0;
-      b.port = std::stoi(port, &used);
-      if (used != port.size() || b.port < 1 || b.port > 65535) throw std::invalid_argument(port);
-    } catch (const std::exception&) {
-      throw std::invalid_argument("'" + uri + "': the port is not a number from 1 to 65535");
-    }
-  }
-  if (rest.empty() || rest.find('/') != std::string::npos) {
-    throw std::invalid_argument("'" + uri + "': no host, or a path after it");
-  }
-  b.host = rest;
-  return b;
-}
 
 std::string first_line(const std::string& file) {
   std::ifstream in(file);
@@ -104,6 +67,10 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   app.add_option("--placements", placements_file, "where the entities stand and their device names (docs/mqtt.md)")
       ->check(CLI::ExistingFile);
+  std::string house_file;
+  app.add_option("--house", house_file,
+                 "a house file whose <device mqtt=UNIQUE_ID> elements place those entities (docs/house.md)")
+      ->check(CLI::ExistingFile);
   app.add_option("--discovery-prefix", prefix, "the discovery topic prefix");
   app.add_option("--command-timeout", timeout_ms, "ms a command waits for the device's state to confirm it")
       ->check(CLI::Range(100, 600'000));
@@ -120,7 +87,7 @@ int main(int argc, char** argv) {
   hm::MqttDevicesOptions device_options;
   icars::planet::CommunicatorOptions comm;
   try {
-    const auto b = parse_broker(broker);
+    const auto b = mqtt::parse_broker_uri(broker);
     client_options.host = b.host;
     client_options.port = b.port;
     client_options.client_id = client_id;
@@ -134,6 +101,13 @@ int main(int argc, char** argv) {
     device_options.discovery_prefix = prefix;
     device_options.command_timeout = std::chrono::milliseconds(timeout_ms);
     if (!placements_file.empty()) device_options.placements = hm::load_placements(placements_file);
+    if (!house_file.empty()) {
+      for (auto& [unique_id, placement] : icars::home::mqtt_placements(icars::sim::load_house(house_file))) {
+        if (!device_options.placements.emplace(unique_id, placement).second) {
+          throw std::invalid_argument("unique_id " + unique_id + " is placed by both --placements and --house");
+        }
+      }
+    }
     comm.name = "mqtt-bridge";
     comm.pun = pun;
     comm.tls = security.tls;

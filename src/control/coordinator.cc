@@ -3,6 +3,8 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <functional>
+#include <stdexcept>
 
 namespace icars::control {
 
@@ -200,6 +202,28 @@ std::vector<std::string> Coordinator::configuration() const {
 std::string Coordinator::current() const {
   auto c = configuration();
   return c.empty() ? "" : c.back();
+}
+
+void Coordinator::raise(b::Event event) {
+  if (event.type() == kTaskDone || event.type() == kTaskFailed) {
+    throw std::invalid_argument("'" + event.type() + "' is raised by tasks only, not from outside the policy");
+  }
+  env_.runtime.post([this, life = std::weak_ptr<const char>(life_), event = std::move(event)] {
+    if (life.lock()) on_task_event(event, nullptr);
+  });
+}
+
+std::vector<std::string> Coordinator::events() const {
+  std::vector<std::string> out;
+  std::function<void(const StateSpec&)> visit = [&](const StateSpec& s) {
+    for (const auto& t : s.transitions) {
+      if (t.event.empty() || t.event == kTaskDone || t.event == kTaskFailed) continue;
+      if (std::find(out.begin(), out.end(), t.event) == out.end()) out.push_back(t.event);
+    }
+    for (const auto& c : s.children) visit(c);
+  };
+  visit(policy_.root);
+  return out;
 }
 
 std::uint64_t Coordinator::transitions() const {

@@ -36,6 +36,7 @@ void MediatingServer::use_clock(Clock& clock) {
 }
 
 control::ParsedPolicy MediatingServer::run_policy(const std::string& name) {
+  std::lock_guard lock(policy_mutex_);
   if (!manager_) {
     if (!clock_) throw std::logic_error("the mediating server has no clock: call use_clock() first");
     runtime_ = std::make_unique<behavior::Runtime>(*clock_, options_.planet.connection.activity);
@@ -47,6 +48,7 @@ control::ParsedPolicy MediatingServer::run_policy(const std::string& name) {
 }
 
 void MediatingServer::stop_policy(std::chrono::milliseconds drain) {
+  std::lock_guard lock(policy_mutex_);
   if (!manager_) return;
   manager_->stop();
   runtime_->drain(drain);
@@ -54,6 +56,7 @@ void MediatingServer::stop_policy(std::chrono::milliseconds drain) {
 
 void MediatingServer::stop(std::chrono::milliseconds drain) {
   stop_policy(drain);
+  std::lock_guard lock(policy_mutex_);
   manager_.reset();
   environment_.reset();
   runtime_.reset();
@@ -61,6 +64,26 @@ void MediatingServer::stop(std::chrono::milliseconds drain) {
 }
 
 control::Coordinator* MediatingServer::coordinator() { return manager_ ? manager_->coordinator() : nullptr; }
+
+bool MediatingServer::raise(behavior::Event event) {
+  std::lock_guard lock(policy_mutex_);
+  auto* c = coordinator();
+  if (c == nullptr) return false;
+  c->raise(std::move(event));
+  return true;
+}
+
+std::string MediatingServer::policy_name() {
+  std::lock_guard lock(policy_mutex_);
+  const auto* c = coordinator();
+  return c ? c->policy().name : std::string();
+}
+
+std::vector<std::string> MediatingServer::policy_events() {
+  std::lock_guard lock(policy_mutex_);
+  const auto* c = coordinator();
+  return c ? c->events() : std::vector<std::string>();
+}
 
 AccessReload MediatingServer::reload_access(std::shared_ptr<const planet::AccessPolicy> next) {
   if (!next) throw std::invalid_argument("no access policy to put in force");

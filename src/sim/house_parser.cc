@@ -356,7 +356,7 @@ void Parser::parse_furniture(pugi::xml_node n, House& house) {
 }
 
 void Parser::parse_device(pugi::xml_node n, House& house) {
-  check_attributes(n, {"id", "type", "room", "x", "y", "heading"});
+  check_attributes(n, {"id", "type", "room", "x", "y", "heading", "mqtt"});
   check_children(n, {"param"});
   DeviceSpec d;
   d.id = name(n, "id");
@@ -367,6 +367,27 @@ void Parser::parse_device(pugi::xml_node n, House& house) {
   d.pose = Pose{at.x, at.y, heading(n)};
   d.params = params(n);
   d.line = line(n);
+  if (const auto a = n.attribute("mqtt")) {
+    // A Home Assistant unique_id: any printable text without spaces; MQTT topics are made from
+    // it, so no wildcards or separators either.
+    const std::string id = a.value();
+    const bool ok = !id.empty() && std::all_of(id.begin(), id.end(), [](char c) {
+      return std::isgraph(static_cast<unsigned char>(c)) != 0 && c != '+' && c != '#' && c != '/';
+    });
+    if (!ok) {
+      fail(line(n), fmt::format("mqtt=\"{}\" of <device> is not an MQTT unique_id, expected "
+                                "printable characters without spaces, '+', '#' or '/'",
+                                id));
+    }
+    for (const auto& other : house.devices) {
+      if (other.mqtt == id) {
+        fail(line(n), fmt::format("mqtt=\"{}\" is the unique_id of device \"{}\" at line {} "
+                                  "too; one entity is one device",
+                                  id, other.id, other.line));
+      }
+    }
+    d.mqtt = id;
+  }
   house.devices.push_back(std::move(d));
   lines_.devices.push_back(line(n));
 }

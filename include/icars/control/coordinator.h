@@ -72,6 +72,14 @@ class Coordinator {
   // after the policy, excluded): without parallel states, outermost first.
   std::vector<std::string> configuration() const;
   std::string current() const;  // the innermost active state (in a parallel state: of its last region)
+  // An event from outside the policy — an operator's command from Home Assistant or a dashboard
+  // — offered to the active configuration as a device event is (on the runtime's thread, after
+  // what is queued there). Thread-safe. Throws std::invalid_argument for `done` and `failed`,
+  // which only tasks raise.
+  void raise(behavior::Event event);
+  // The events the statechart's transitions wait for, besides `done` and `failed`, in document
+  // order without repeats: what an operator's command may raise to move it.
+  std::vector<std::string> events() const;
   std::uint64_t transitions() const;
   // The statechart reached one of its own final states: every state was left and the policy
   // does nothing more (until start() runs it again).

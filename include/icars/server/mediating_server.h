@@ -93,7 +93,8 @@ class MediatingServer {
   behavior::Runtime* runtime() { return runtime_.get(); }
 
   // Loads, checks and starts a policy, replacing the one running. Throws control::PolicyError
-  // (the running policy, if any, keeps running) and std::logic_error without a clock.
+  // (the running policy, if any, keeps running) and std::logic_error without a clock. May be
+  // called from any thread (an operator switching policies).
   control::ParsedPolicy run_policy(const std::string& name);
   // Stops the running policy and waits up to `drain` for its behaviors to finish.
   void stop_policy(std::chrono::milliseconds drain = std::chrono::seconds(5));
@@ -102,6 +103,13 @@ class MediatingServer {
   void stop(std::chrono::milliseconds drain = std::chrono::seconds(5));
   // The running policy's Coordinator (null when none runs).
   control::Coordinator* coordinator();
+  // An operator's command: raises `event` in the running policy (Coordinator::raise), from any
+  // thread. False when no policy runs; std::invalid_argument for `done` and `failed`.
+  bool raise(behavior::Event event);
+  // The running policy's name and the events its transitions wait for (Coordinator::events);
+  // empty when none runs. Thread-safe.
+  std::string policy_name();
+  std::vector<std::string> policy_events();
 
   // Puts another access policy in force: principals that `next` removes or changes lose their
   // links, and the devices of those removed are forgotten. Needs a server built with an access
@@ -120,6 +128,7 @@ class MediatingServer {
   std::unique_ptr<behavior::Runtime> runtime_;
   std::unique_ptr<behavior::Environment> environment_;
   std::unique_ptr<control::CollaborationManager> manager_;
+  std::mutex policy_mutex_;  // run_policy, stop_policy and stop against the thread-safe accessors
   mutable std::mutex access_mutex_;
   std::shared_ptr<const planet::AccessPolicy> access_;
 };

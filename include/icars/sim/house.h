@@ -81,6 +81,9 @@ struct DeviceSpec {
   Pose pose;                   // a carried device: the robot's start pose
   std::map<std::string, std::string> params;
   std::size_t line = 0;  // of its element in the house file; 0 when not read from a file
+  // Set: the device is an MQTT entity with this Home Assistant unique_id, brought in by an MQTT
+  // bridge instead of the house's device manager (docs/house.md, "MQTT devices").
+  std::string mqtt;
 };
 
 struct RobotSpec {

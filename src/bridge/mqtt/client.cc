@@ -76,6 +76,7 @@ Client::Client(ClientOptions options) : options_(std::move(options)) {
   mosquitto_connect_callback_set(mosq_, &Client::handle_connect);
   mosquitto_disconnect_callback_set(mosq_, &Client::handle_disconnect);
   mosquitto_message_callback_set(mosq_, &Client::handle_message);
+  mosquitto_publish_callback_set(mosq_, &Client::handle_publish);
 }
 
 Client::~Client() {
@@ -160,12 +161,28 @@ void Client::publish(const std::string& topic, std::string_view payload, bool re
   const int rc = connected() ? mosquitto_publish(mosq_, nullptr, topic.c_str(), static_cast<int>(payload.size()),
                                                  payload.data(), qos, retain)
                              : MOSQ_ERR_NO_CONN;
-  if (rc == MOSQ_ERR_SUCCESS) return;
+  if (rc == MOSQ_ERR_SUCCESS) {
+    std::lock_guard lock(mutex_);
+    ++sent_;
+    return;
+  }
   if (rc == MOSQ_ERR_NO_CONN) {
     throw Error(fmt::format("mqtt: cannot publish to '{}': not connected to the broker at {}{}", topic,
                             endpoint(options_), last_error().empty() ? "" : " (" + last_error() + ")"));
   }
   throw Error(fmt::format("mqtt: cannot publish to '{}': {}", topic, mosquitto_strerror(rc)));
+}
+
+bool Client::drain(std::chrono::milliseconds timeout) const {
+  std::unique_lock lock(mutex_);
+  return changed_.wait_for(lock, timeout, [this] { return delivered_ >= sent_; });
+}
+
+void Client::handle_publish(struct ::mosquitto*, void* obj, int) {
+  auto* self = static_cast<Client*>(obj);
+  std::lock_guard lock(self->mutex_);
+  ++self->delivered_;
+  self->changed_.notify_all();
 }
 
 bool Client::connected() const {
@@ -250,6 +267,37 @@ void Client::handle_message(struct ::mosquitto*, void* obj, const struct ::mosqu
   message.payload.assign(static_cast<const char*>(m->payload), static_cast<std::size_t>(m->payloadlen));
   message.retained = m->retain;
   self->on_message_(message);
+}
+
+BrokerUri parse_broker_uri(const std::string& uri) {
+  BrokerUri b;
+  std::string rest;
+  if (uri.starts_with("mqtt://")) {
+    rest = uri.substr(7);
+  } else if (uri.starts_with("mqtts://")) {
+    rest = uri.substr(8);
+    b.tls = true;
+    b.port = 8883;
+  } else {
+    throw std::invalid_argument("'" + uri + "' is not mqtt://HOST[:PORT] or mqtts://HOST[:PORT]");
+  }
+  const auto colon = rest.rfind(':');
+  if (colon != std::string::npos) {
+    const auto port = rest.substr(colon + 1);
+    rest = rest.substr(0, colon);
+    try {
+      std::size_t used = 0;
+      b.port = std::stoi(port, &used);
+      if (used != port.size() || b.port < 1 || b.port > 65535) throw std::invalid_argument(port);
+    } catch (const std::exception&) {
+      throw std::invalid_argument("'" + uri + "': the port is not a number from 1 to 65535");
+    }
+  }
+  if (rest.empty() || rest.find('/') != std::string::npos) {
+    throw std::invalid_argument("'" + uri + "': no host, or a path after it");
+  }
+  b.host = rest;
+  return b;
 }
 
 }  // namespace icars::bridge::mqtt

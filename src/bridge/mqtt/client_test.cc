@@ -218,5 +218,42 @@ TEST(MqttClient, AnOversizedMessageIsDroppedAndReportedAndTheNextOneArrives) {
   EXPECT_EQ(problems[0], "big/blob: a message of 1000 bytes dropped (more than 100)");
 }
 
+// Everything published before drain() returned true is at the broker: a subscriber gets all of
+// it even when the publisher stops at once.
+TEST(MqttClient, DrainWaitsUntilTheBrokerHasEverythingPublished) {
+  bridge_test::Broker broker;
+  Inbox inbox;
+  Client receiver(to(broker, "receiver"));
+  receiver.on_message(inbox.sink());
+  receiver.subscribe("drain/#");
+  receiver.start();
+  ASSERT_TRUE(receiver.wait_connected(20s));
+  {
+    Client sender(to(broker, "sender"));
+    sender.start();
+    ASSERT_TRUE(sender.wait_connected(20s));
+    for (int i = 0; i < 200; ++i) sender.publish("drain/" + std::to_string(i), std::string(1000, 'x'), true);
+    EXPECT_TRUE(sender.drain(20s));
+    sender.stop();
+  }
+  ASSERT_TRUE(planet_test::wait_until([&] { return inbox.has("drain/199", std::string(1000, 'x'), false); }));
+}
+
+TEST(BrokerUri, ReadsHostPortAndTlsAndRefusesTheRest) {
+  const auto plain = parse_broker_uri("mqtt://broker.lan");
+  EXPECT_EQ(plain.host, "broker.lan");
+  EXPECT_EQ(plain.port, 1883);
+  EXPECT_FALSE(plain.tls);
+  const auto tls = parse_broker_uri("mqtts://10.0.0.2:8884");
+  EXPECT_EQ(tls.host, "10.0.0.2");
+  EXPECT_EQ(tls.port, 8884);
+  EXPECT_TRUE(tls.tls);
+  EXPECT_EQ(parse_broker_uri("mqtts://h").port, 8883);
+  for (const auto* bad : {"broker.lan:1883", "http://h", "mqtt://", "mqtt://h:0", "mqtt://h:99999", "mqtt://h:x",
+                          "mqtt://h/path"}) {
+    EXPECT_THROW(parse_broker_uri(bad), std::invalid_argument) << bad;
+  }
+}
+
 }  // namespace
 }  // namespace icars::bridge::mqtt

@@ -17,8 +17,10 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
   communicator_ = std::make_unique<planet::Communicator>(comm);
   manager_ = std::make_unique<device::DeviceManager>(*communicator_);
   std::vector<const sim::DeviceSpec*> hosted;
+  std::vector<const sim::DeviceSpec*> over_mqtt;
   for (const auto& spec : world_->house().devices) {
-    if (options_.devices.empty() || options_.devices.contains(spec.id)) hosted.push_back(&spec);
+    if (!options_.devices.empty() && !options_.devices.contains(spec.id)) continue;
+    (spec.mqtt.empty() ? hosted : over_mqtt).push_back(&spec);
   }
   if (!options_.state_file.empty()) {
     std::vector<std::string> ids;
@@ -37,11 +39,26 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     for (auto& d : make_sim_engines(context)) manager_->add(d);
   }
   if (options_.simulator) manager_->add(make_simulator_device(context));
+  if (options_.mqtt && !over_mqtt.empty()) {
+    for (const auto* spec : over_mqtt) {
+      if (!simulated_over_mqtt(spec->type)) {
+        throw sim::HouseError(world_->house().source, spec->line,
+                              "device \"" + spec->id + "\" of type " + spec->type +
+                                  " cannot be an MQTT device of the simulated house; Light, BedOccupancy, "
+                                  "SofaOccupancy, Occupancy and MotionSensor can");
+      }
+    }
+    auto mqtt = *options_.mqtt;
+    mqtt.activity = options_.activity;
+    if (!mqtt.logger) mqtt.logger = options_.logger;
+    mqtt_ = std::make_unique<SimulatedMqttDevices>(*world_, std::move(over_mqtt), options_.effects, std::move(mqtt));
+  }
   if (!options_.activity) driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
 }
 
 SimulatedHouse::~SimulatedHouse() {
   if (driver_) driver_->stop();
+  mqtt_.reset();
   manager_.reset();
   communicator_.reset();  // no servant runs after this
   state_.reset();         // its last write reads the world
@@ -50,6 +67,7 @@ SimulatedHouse::~SimulatedHouse() {
 
 void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
   if (state_) state_->start();
+  if (mqtt_) mqtt_->start();
   if (driver_) driver_->start();
   manager_->connect(host, port);
 }

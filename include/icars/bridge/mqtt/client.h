@@ -60,6 +60,16 @@ struct ClientOptions {
   void validate() const;  // throws std::invalid_argument naming the bad option
 };
 
+// A broker's address as users write it: "mqtt://HOST[:PORT]" (1883) or "mqtts://HOST[:PORT]"
+// (8883, TLS).
+struct BrokerUri {
+  std::string host;
+  int port = 1883;
+  bool tls = false;
+};
+// Throws std::invalid_argument naming the URI and what is wrong with it.
+BrokerUri parse_broker_uri(const std::string& uri);
+
 struct Message {
   std::string topic;
   std::string payload;
@@ -96,6 +106,10 @@ class Client {
   // wildcards or one the MQTT rules refuse.
   void publish(const std::string& topic, std::string_view payload, bool retain = false, int qos = 1);
 
+  // Waits until everything published so far has reached the broker (for QoS 0: was written;
+  // for QoS 1 and 2: was acknowledged). False after `timeout`: the broker went away meanwhile.
+  bool drain(std::chrono::milliseconds timeout) const;
+
   bool connected() const;
   bool wait_connected(std::chrono::milliseconds timeout) const;
   std::uint64_t connections() const;  // how many times a connection was made
@@ -106,6 +120,7 @@ class Client {
   static void handle_connect(struct ::mosquitto*, void* self, int rc);
   static void handle_disconnect(struct ::mosquitto*, void* self, int rc);
   static void handle_message(struct ::mosquitto*, void* self, const struct ::mosquitto_message* m);
+  static void handle_publish(struct ::mosquitto*, void* self, int mid);
 
   ClientOptions options_;
   struct ::mosquitto* mosq_ = nullptr;
@@ -115,6 +130,8 @@ class Client {
   bool connected_ = false;
   bool refused_ = false;
   std::uint64_t connections_ = 0;
+  std::uint64_t sent_ = 0;       // publishes handed to libmosquitto
+  std::uint64_t delivered_ = 0;  // ... and done with (written, or acknowledged)
   std::string last_error_;
   std::map<std::string, int> subscriptions_;  // filter -> QoS, made again on each connection
   std::function<void(const Message&)> on_message_;

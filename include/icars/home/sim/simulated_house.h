@@ -8,6 +8,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <set>
 #include <string>
 
@@ -15,6 +16,7 @@
 #include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/sim/sim_devices.h"
+#include "icars/home/sim/sim_mqtt_devices.h"
 #include "icars/home/sim/sim_state_file.h"
 #include "icars/sim/house.h"
 #include "icars/sim/world.h"
@@ -41,6 +43,11 @@ struct SimulatedHouseOptions {
   // and the house does not drive its clock (a LockStepDriver does, from start()). Null: the
   // clock runs at `speedup` with the wall clock.
   std::shared_ptr<Activity> activity;
+  // The house's MQTT devices (those with an `mqtt` unique_id, docs/house.md) are never served
+  // over PLANET: with this set they are simulated on this broker as zigbee2mqtt would serve
+  // them (SimulatedMqttDevices; `activity` is taken from above), for an MQTT bridge to bring
+  // in; without it they are left to a real home's devices.
+  std::optional<SimulatedMqttOptions> mqtt;
 };
 
 class SimulatedHouse {
@@ -50,7 +57,8 @@ class SimulatedHouse {
   ~SimulatedHouse();  // stops the clock first, so no world event runs during teardown
 
   // Restores the robots from the state file and writes it (throwing std::runtime_error
-  // naming the file when it cannot), then starts the clock (unless in lock-step) and connects
+  // naming the file when it cannot), publishes the MQTT devices (bridge::mqtt::Error when the
+  // broker cannot be reached), then starts the clock (unless in lock-step) and connects
   // to the server (registering every device, again after every reconnection). Set the clock first (--epoch):
   // a robot's kept motion goes on from the clock's time here.
   void start(const std::string& host, std::uint16_t port);
@@ -60,6 +68,7 @@ class SimulatedHouse {
   device::DeviceManager& manager() { return *manager_; }
   SimStateFile* state_file() { return state_.get(); }  // null without one
   planet::Communicator& communicator() { return *communicator_; }
+  SimulatedMqttDevices* mqtt() { return mqtt_.get(); }  // null without SimulatedHouseOptions::mqtt
 
  private:
   SimulatedHouseOptions options_;
@@ -68,6 +77,7 @@ class SimulatedHouse {
   std::unique_ptr<SimStateFile> state_;  // outlives the devices, not the world
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<device::DeviceManager> manager_;
+  std::unique_ptr<SimulatedMqttDevices> mqtt_;
   std::unique_ptr<RealTimeDriver> driver_;  // null in lock-step
 };
 
