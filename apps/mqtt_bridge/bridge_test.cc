@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -16,6 +18,7 @@
 #include <vector>
 
 #include "broker.h"
+#include "tls_files.h"
 #include "child_process.h"
 #include "fleet.h"
 #include "icars/home/adaptors.h"
@@ -139,6 +142,40 @@ TEST_F(MqttBridge, AWrongPasswordEndsTheBridgeWithTheBrokersReason) {
   const auto status = bridge->wait_for(30s);
   ASSERT_TRUE(status);
   EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 3) << *status;
+}
+
+// A broker as a home secures it: TLS with the home's own authority and a password. The bridge
+// checks the broker's certificate: against another authority it does not connect and says why.
+TEST_F(MqttBridge, ConnectsOverTlsWithAPasswordAndRefusesABrokerItCannotTrust) {
+  const auto certs = fs::temp_directory_path() / ("icars-mqtt-tls-" + std::to_string(::getpid()));
+  const auto other = certs / "other";
+  planet_test::make_certificates(certs);
+  planet_test::make_certificates(other);
+  bridge_test::Broker broker({.username = "icars", .password = "secret", .tls_dir = certs.string()});
+  const auto uri = "mqtts://127.0.0.1:" + std::to_string(broker.port());
+  const auto password = file("password", "secret\n");
+  std::vector<std::string> seen;
+  {
+    auto bridge = launch(broker, {"--username", "icars", "--password-file", password.string(), "--ca-file",
+                                  (certs / "ca.pem").string()},
+                         uri);
+    EXPECT_NE(read_until(*bridge, "BROKER CONNECTED", seen), "") << joined(seen);
+    bridge->signal(SIGTERM);
+    EXPECT_TRUE(bridge->wait_for(30s));
+  }
+  {
+    seen.clear();
+    auto bridge = launch(broker, {"--username", "icars", "--password-file", password.string(), "--ca-file",
+                                  (other / "ca.pem").string()},
+                         uri);
+    const auto down = read_until(*bridge, "BROKER DOWN", seen);
+    EXPECT_NE(down.find("certificate verify failed"), std::string::npos) << joined(seen);
+    EXPECT_EQ(std::count_if(seen.begin(), seen.end(), [](const std::string& l) { return l == "BROKER CONNECTED"; }), 0)
+        << joined(seen);
+    bridge->signal(SIGTERM);
+    EXPECT_TRUE(bridge->wait_for(30s));
+  }
+  fs::remove_all(certs);
 }
 
 TEST_F(MqttBridge, ABrokenPlacementFileOrBrokerAddressStopsItBeforeItConnects) {

@@ -70,6 +70,9 @@ Client::Client(ClientOptions options) : options_(std::move(options)) {
                              options_.will->payload.data(), 1, options_.will->retain),
           "last will");
   }
+  // Commands and states are small messages that want an answer: without this, a publish that
+  // follows an acknowledgement waits for the broker's delayed ACK (40 ms on Linux).
+  check(mosquitto_int_option(mosq_, MOSQ_OPT_TCP_NODELAY, 1), "TCP_NODELAY");
   check(mosquitto_reconnect_delay_set(mosq_, static_cast<unsigned>(options_.reconnect_min.count()),
                                       static_cast<unsigned>(options_.reconnect_max.count()), true),
         "reconnect delay");
@@ -77,6 +80,7 @@ Client::Client(ClientOptions options) : options_(std::move(options)) {
   mosquitto_disconnect_callback_set(mosq_, &Client::handle_disconnect);
   mosquitto_message_callback_set(mosq_, &Client::handle_message);
   mosquitto_publish_callback_set(mosq_, &Client::handle_publish);
+  mosquitto_log_callback_set(mosq_, &Client::handle_log);
 }
 
 Client::~Client() {
@@ -221,6 +225,8 @@ void Client::handle_connect(struct ::mosquitto* mosq, void* obj, int rc) {
     if (rc == 0) {
       self->connected_ = true;
       ++self->connections_;
+      self->log_error_.clear();
+      self->reported_failure_.clear();
       subscriptions = self->subscriptions_;
     } else {
       // Refused (a wrong password, a client the broker does not want): retrying will not help.
@@ -238,18 +244,45 @@ void Client::handle_connect(struct ::mosquitto* mosq, void* obj, int rc) {
 void Client::handle_disconnect(struct ::mosquitto*, void* obj, int rc) {
   auto* self = static_cast<Client*>(obj);
   std::string reason;
-  bool was_connected = false;
+  bool report = false;
   {
     std::lock_guard lock(self->mutex_);
-    was_connected = self->connected_;
+    const bool was_connected = self->connected_;
     self->connected_ = false;
     if (rc != 0 && !self->refused_) {
-      self->last_error_ = reason = fmt::format("lost the connection to the broker at {}: {}", endpoint(self->options_),
-                                               rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc));
+      reason = fmt::format("{} the broker at {}: {}", was_connected ? "lost the connection to" : "cannot connect to",
+                           endpoint(self->options_),
+                           rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc));
+      // What libmosquitto logged about it says more (a certificate the CA did not sign).
+      if (!self->log_error_.empty()) reason += " (" + self->log_error_ + ")";
+      self->last_error_ = reason;
     }
+    // A connection that never came up is reported once per reason, not on every retry.
+    report = was_connected || (!reason.empty() && reason != self->reported_failure_);
+    if (!was_connected && !reason.empty()) self->reported_failure_ = reason;
     self->changed_.notify_all();
   }
-  if (was_connected && self->on_connection_) self->on_connection_(false, reason.empty() ? "disconnected" : reason);
+  if (report && self->on_connection_) self->on_connection_(false, reason.empty() ? "disconnected" : reason);
+}
+
+// libmosquitto reports some failures to connect only in its log (a TLS handshake that fails
+// ends the attempt without a disconnect): an error logged while not connected is one, told once
+// per reason.
+void Client::handle_log(struct ::mosquitto*, void* obj, int level, const char* text) {
+  if ((level & MOSQ_LOG_ERR) == 0 || text == nullptr) return;
+  auto* self = static_cast<Client*>(obj);
+  std::string reason;
+  {
+    std::lock_guard lock(self->mutex_);
+    self->log_error_ = text;
+    if (self->connected_ || self->refused_ || !self->started_) return;
+    reason = fmt::format("cannot connect to the broker at {}: {}", endpoint(self->options_), text);
+    self->last_error_ = reason;
+    if (reason == self->reported_failure_) return;
+    self->reported_failure_ = reason;
+    self->changed_.notify_all();
+  }
+  if (self->on_connection_) self->on_connection_(false, reason);
 }
 
 void Client::handle_message(struct ::mosquitto*, void* obj, const struct ::mosquitto_message* m) {

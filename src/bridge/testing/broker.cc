@@ -61,6 +61,11 @@ Broker::Broker(BrokerOptions options) : options_(std::move(options)) {
        << "user " << (::getpwuid(::geteuid()) ? ::getpwuid(::geteuid())->pw_name : "root") << "\n"
        << "log_dest stderr\n"
        << "log_type error\n";
+  if (!options_.tls_dir.empty()) {
+    conf << "cafile " << options_.tls_dir << "/ca.pem\n"
+         << "certfile " << options_.tls_dir << "/server.pem\n"
+         << "keyfile " << options_.tls_dir << "/server.key\n";
+  }
   if (options_.username.empty()) {
     conf << "allow_anonymous true\n";
   } else {

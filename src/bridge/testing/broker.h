@@ -1,5 +1,6 @@
 // Test support: a real Mosquitto broker (Debian's `mosquitto`) started by the test on a free
-// loopback port, optionally with a password file, and killed and started again on the same port.
+// loopback port, optionally with a password file and TLS, and killed and started again on the
+// same port.
 #pragma once
 
 #include <memory>
@@ -10,8 +11,11 @@
 namespace bridge_test {
 
 struct BrokerOptions {
-  std::string username;  // set: the broker admits only this user with `password`
-  std::string password;
+  std::string username{};  // set: the broker admits only this user with `password`
+  std::string password{};
+  // Set: the broker listens with TLS only, with this directory's server.pem and server.key,
+  // signed by its ca.pem (planet_test::make_certificates).
+  std::string tls_dir{};
 };
 
 class Broker {

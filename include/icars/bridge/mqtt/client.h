@@ -87,8 +87,9 @@ class Client {
 
   // Callbacks run on the client's network thread; set them before start().
   void on_message(std::function<void(const Message&)> fn);
-  // (connected, reason): every connection made or lost; the reason says why it was lost or
-  // refused ("" when connected).
+  // (connected, reason): every connection made or lost, and each new reason a connection could
+  // not be made (a broker not there, a certificate its CA did not sign); the reason says why it
+  // was lost or refused ("" when connected).
   void on_connection(std::function<void(bool, const std::string&)> fn);
   // Told once per problem with incoming data (a message too large), with the topic.
   void on_problem(std::function<void(const std::string&)> fn);
@@ -121,6 +122,7 @@ class Client {
   static void handle_disconnect(struct ::mosquitto*, void* self, int rc);
   static void handle_message(struct ::mosquitto*, void* self, const struct ::mosquitto_message* m);
   static void handle_publish(struct ::mosquitto*, void* self, int mid);
+  static void handle_log(struct ::mosquitto*, void* self, int level, const char* text);
 
   ClientOptions options_;
   struct ::mosquitto* mosq_ = nullptr;
@@ -133,6 +135,8 @@ class Client {
   std::uint64_t sent_ = 0;       // publishes handed to libmosquitto
   std::uint64_t delivered_ = 0;  // ... and done with (written, or acknowledged)
   std::string last_error_;
+  std::string log_error_;         // libmosquitto's last error log line since the last connection
+  std::string reported_failure_;  // the failure to connect last told to on_connection
   std::map<std::string, int> subscriptions_;  // filter -> QoS, made again on each connection
   std::function<void(const Message&)> on_message_;
   std::function<void(bool, const std::string&)> on_connection_;
