@@ -43,7 +43,15 @@ const std::map<std::string, std::string, std::less<>>& abbreviations() {
       {"stat_val_tpl", "state_value_template"},
       {"mode_cmd_t", "mode_command_topic"},
       {"mode_stat_t", "mode_state_topic"},
-      {"pow_cmd_t", "power_command_topic"},
+      {"mode_stat_tpl", "mode_state_template"},
+      {"pl_open", "payload_open"},
+      {"pl_cls", "payload_close"},
+      {"pl_stop", "payload_stop"},
+      {"stat_open", "state_open"},
+      {"stat_clsd", "state_closed"},
+      {"stat_opening", "state_opening"},
+      {"stat_closing", "state_closing"},
+      {"stat_stopped", "state_stopped"},
       {"sug_area", "suggested_area"},
       {"ids", "identifiers"},
       {"sa", "suggested_area"},
@@ -227,9 +235,29 @@ DiscoveryResult read_discovery(std::string_view topic, std::string_view payload,
     e.state_topic = r.topic("state_topic");
     e.command_topic = r.topic("command_topic");
     if (c == "climate") {
-      e.command_topic = r.topic("power_command_topic");
-      if (e.command_topic.empty()) e.command_topic = r.topic("mode_command_topic");
-      if (e.state_topic.empty()) e.state_topic = r.topic("mode_state_topic");
+      // ICARS switches a climate device by its mode ("off" or another), which its mode state
+      // topic confirms; its power topic has no state topic to confirm a command with.
+      e.command_topic = r.topic("mode_command_topic");
+      e.state_topic = r.topic("mode_state_topic");
+      e.modes = {"auto", "off", "cool", "heat", "dry", "fan_only"};  // Home Assistant's default
+      if (const auto modes = config.find("modes"); modes != config.end()) {
+        if (!modes->is_array()) throw Bad("'modes' must be a list of strings");
+        e.modes.clear();
+        for (const auto& m : *modes) {
+          if (!m.is_string()) throw Bad("'modes' must be a list of strings");
+          e.modes.push_back(m.get<std::string>());
+        }
+      }
+    }
+    if (c == "cover") {
+      e.payload_open = r.string("payload_open", "OPEN");
+      e.payload_close = r.string("payload_close", "CLOSE");
+      e.payload_stop = r.string("payload_stop", "STOP");
+      e.state_open = r.string("state_open", "open");
+      e.state_closed = r.string("state_closed", "closed");
+      e.state_opening = r.string("state_opening", "opening");
+      e.state_closing = r.string("state_closing", "closing");
+      e.state_stopped = r.string("state_stopped", "stopped");
     }
     e.schema = r.string("schema", "default");
     if (c == "light" && e.schema != "default" && e.schema != "json") {
@@ -248,7 +276,8 @@ DiscoveryResult read_discovery(std::string_view topic, std::string_view payload,
     e.state_on = r.string("state_on", e.payload_on);
     e.state_off = r.string("state_off", e.payload_off);
     e.unit = r.string("unit_of_measurement");
-    const auto value_template = r.string("value_template", r.string("state_value_template"));
+    const auto value_template = c == "climate" ? r.string("mode_state_template")
+                                               : r.string("value_template", r.string("state_value_template"));
     if (!value_template.empty()) {
       const auto path = value_template_path(value_template);
       if (!path) {
@@ -307,7 +336,7 @@ DiscoveryResult read_discovery(std::string_view topic, std::string_view payload,
     const bool commanded = c == "light" || c == "switch" || c == "cover" || c == "fan" || c == "climate";
     if (commanded && e.command_topic.empty()) {
       throw Bad(fmt::format("a {} needs a command topic ({})", c,
-                            c == "climate" ? "'power_command_topic' or 'mode_command_topic'" : "'command_topic'"));
+                            c == "climate" ? "'mode_command_topic'" : "'command_topic'"));
     }
     if ((c == "binary_sensor" || c == "sensor") && e.state_topic.empty()) {
       throw Bad(fmt::format("a {} needs 'state_topic'", c));

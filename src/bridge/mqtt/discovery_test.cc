@@ -164,7 +164,54 @@ TEST(Discovery, ClimateFanAndCoverNeedOnlyWhatTurnsThemOnOrOff) {
   r = read_discovery("homeassistant/cover/blind/config", R"({"cmd_t": "blind/set"})");
   EXPECT_EQ(r.error, "");
   r = read_discovery("homeassistant/climate/thermostat/config", R"({"temperature_command_topic": "t/set"})");
-  EXPECT_NE(r.error.find("'power_command_topic' or 'mode_command_topic'"), std::string::npos) << r.error;
+  EXPECT_NE(r.error.find("a climate needs a command topic ('mode_command_topic')"), std::string::npos) << r.error;
+  // A power topic alone is not enough: nothing would confirm a command sent to it.
+  r = read_discovery("homeassistant/climate/thermostat/config", R"({"power_command_topic": "t/power"})");
+  EXPECT_NE(r.error.find("'mode_command_topic'"), std::string::npos) << r.error;
+}
+
+TEST(Discovery, ACoverReadsItsPayloadsAndStatesWithHomeAssistantsDefaults) {
+  auto r = read_discovery("homeassistant/cover/blind/config", R"({"cmd_t": "blind/set", "stat_t": "blind/state"})");
+  ASSERT_EQ(r.error, "");
+  EXPECT_EQ(r.entity->payload_open, "OPEN");
+  EXPECT_EQ(r.entity->payload_close, "CLOSE");
+  EXPECT_EQ(r.entity->payload_stop, "STOP");
+  EXPECT_EQ(r.entity->state_open, "open");
+  EXPECT_EQ(r.entity->state_closed, "closed");
+  EXPECT_EQ(r.entity->state_opening, "opening");
+  EXPECT_EQ(r.entity->state_closing, "closing");
+  EXPECT_EQ(r.entity->state_stopped, "stopped");
+  // zigbee2mqtt's covers: abbreviated keys, upper-case states, the state in a JSON field.
+  r = read_discovery("homeassistant/cover/0x01/cover/config", R"({
+    "cmd_t": "zigbee2mqtt/blind/set", "stat_t": "zigbee2mqtt/blind", "val_tpl": "{{ value_json.state }}",
+    "pl_open": "OPEN", "pl_cls": "CLOSE", "pl_stop": "STOP",
+    "stat_open": "OPEN", "stat_clsd": "CLOSE", "stat_opening": "OPENING", "stat_closing": "CLOSING",
+    "stat_stopped": "STOP"})");
+  ASSERT_EQ(r.error, "");
+  EXPECT_EQ(r.entity->value_path, std::vector<std::string>{"state"});
+  EXPECT_EQ(r.entity->state_closed, "CLOSE");
+  EXPECT_EQ(r.entity->state_opening, "OPENING");
+  EXPECT_EQ(r.entity->state_stopped, "STOP");
+}
+
+TEST(Discovery, AClimateIsSwitchedByItsModeTopicsAndReadsItsModes) {
+  auto r = read_discovery("homeassistant/climate/0x02/climate/config", R"({
+    "mode_cmd_t": "zigbee2mqtt/trv/set/system_mode", "mode_stat_t": "zigbee2mqtt/trv",
+    "mode_stat_tpl": "{{ value_json.system_mode }}", "modes": ["off", "heat", "auto"],
+    "power_command_topic": "zigbee2mqtt/trv/set/power"})");
+  ASSERT_EQ(r.error, "");
+  EXPECT_EQ(r.entity->command_topic, "zigbee2mqtt/trv/set/system_mode");
+  EXPECT_EQ(r.entity->state_topic, "zigbee2mqtt/trv");
+  EXPECT_EQ(r.entity->value_path, std::vector<std::string>{"system_mode"});
+  EXPECT_EQ(r.entity->modes, (std::vector<std::string>{"off", "heat", "auto"}));
+  r = read_discovery("homeassistant/climate/ac/config", R"({"mode_command_topic": "ac/mode/set"})");
+  ASSERT_EQ(r.error, "");
+  EXPECT_EQ(r.entity->modes, (std::vector<std::string>{"auto", "off", "cool", "heat", "dry", "fan_only"}));
+  for (const char* bad : {R"({"mode_command_topic": "ac/set", "modes": "heat"})",
+                          R"({"mode_command_topic": "ac/set", "modes": ["off", 3]})"}) {
+    r = read_discovery("homeassistant/climate/ac/config", bad);
+    EXPECT_NE(r.error.find("'modes' must be a list of strings"), std::string::npos) << bad << ": " << r.error;
+  }
 }
 
 }  // namespace

@@ -61,6 +61,19 @@ struct Entity {
   std::string state_on;   // what the state topic says when on (default: payload_on)
   std::string state_off;  // ... and off (default: payload_off)
   std::string unit;       // `unit_of_measurement`
+  // cover: what its command topic takes and its state topic says.
+  std::string payload_open = "OPEN";
+  std::string payload_close = "CLOSE";
+  std::string payload_stop = "STOP";
+  std::string state_open = "open";
+  std::string state_closed = "closed";
+  std::string state_opening = "opening";
+  std::string state_closing = "closing";
+  std::string state_stopped = "stopped";
+  // climate: its HVAC modes (`modes`, Home Assistant's default list when absent); its command
+  // and state topics are `mode_command_topic` and `mode_state_topic`, read by
+  // `mode_state_template`.
+  std::vector<std::string> modes;
   // The JSON path `value_template` reads ("temperature" for "{{ value_json.temperature }}");
   // empty: the payload itself is the value.
   std::vector<std::string> value_path;
