@@ -16,6 +16,9 @@ service::AdaptorFactory adaptors() {
   f.add<home::FaceRecognizer, FaceRecognizerService>();
   f.add<home::Clock, ClockService>();
   f.add<home::Simulation, SimulationService>();
+  f.add<home::MeasurementSensor, MeasurementService>();
+  f.add<home::Cover, CoverService>();
+  f.add<home::PowerSwitch, PowerSwitchService>();
   return f;
 }
 
@@ -152,6 +155,71 @@ void OccupancyService::reread(const home::OccupancySensorPrx& sensor) {
       self->deliver_if_changed(reading);
     });
   });
+}
+
+void MeasurementService::reread(const home::MeasurementSensorPrx& sensor) {
+  sensor.quantity_async([weak = weak_from_this(), sensor](std::exception_ptr e, std::string quantity = {}) {
+    if (e) return;
+    sensor.unit_async([weak, sensor, quantity](std::exception_ptr e2, std::string unit = {}) {
+      if (e2) return;
+      // Fails while the sensor has no reading yet: then there is no baseline to compare with.
+      sensor.value_async([weak, quantity, unit](std::exception_ptr e3, double value = 0) {
+        auto self = std::static_pointer_cast<MeasurementService>(weak.lock());
+        if (!self || e3) return;
+        const auto last = self->last_event();
+        home::MeasurementEvent reading{self->device_id(), quantity, value, unit, self->attributes().room,
+                                       last ? last->time_ms : 0};
+        self->deliver_if_changed(reading);
+      });
+    });
+  });
+}
+
+bool CoverService::is_command(std::string_view method) const {
+  return method == "open" || method == "close" || method == "stop";
+}
+
+void CoverService::read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) {
+  proxy().state_async([done = std::move(done)](std::exception_ptr e, home::CoverState s = {}) {
+    service::DeviceState state;
+    if (!e) {
+      const auto& p = s.position;
+      state.set("position", p == "opening" ? std::string("open") : p == "closing" ? std::string("closed") : p);
+    }
+    done(e, std::move(state));
+  });
+}
+
+// Only a cover that was open or closed is moved there again; one stopped part-way stays.
+void CoverService::apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) {
+  const auto position = wanted.get<std::string>("position");
+  if (position == "open") {
+    proxy().open_async(std::move(done));
+  } else if (position == "closed") {
+    proxy().close_async(std::move(done));
+  } else {
+    done(nullptr);
+  }
+}
+
+std::string PowerSwitchService::service_type(std::string_view capability) {
+  if (capability == "fan") return "FanControl";
+  if (capability == "climate") return "ClimateControl";
+  return "PowerControl";
+}
+
+bool PowerSwitchService::is_command(std::string_view method) const { return method == "set_power"; }
+
+void PowerSwitchService::read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) {
+  proxy().on_async([done = std::move(done)](std::exception_ptr e, bool on = false) {
+    service::DeviceState state;
+    if (!e) state.set("on", on);
+    done(e, std::move(state));
+  });
+}
+
+void PowerSwitchService::apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) {
+  proxy().set_power_async(wanted.get<bool>("on"), std::move(done));
 }
 
 }  // namespace icars::home

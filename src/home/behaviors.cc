@@ -93,6 +93,7 @@ class Sense final : public Behavior {
     if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return sense(so), true;
     if (auto n = std::dynamic_pointer_cast<NavigationService>(sensor)) return sense(n), true;
     if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return sense(u), true;
+    if (auto ms = std::dynamic_pointer_cast<MeasurementService>(sensor)) return sense(ms), true;
     return false;
   }
   // The state now, as the sensor would have reported it when it last changed.
@@ -580,7 +581,8 @@ void register_behaviors(BehaviorRegistry& registry) {
   using T = ParamType;
   registry.add<Sense>("Sense", "propagates the events of sensor services",
                       {param("service", T::string, std::nullopt,
-                             "service type: OccupancySensor, SpeechSensor, MotionSensor, SoundSensor, Navigation, UserLocator"),
+                             "service type: OccupancySensor, SpeechSensor, MotionSensor, SoundSensor, Navigation, UserLocator, "
+                             "MeasurementSensor"),
                        param("room", T::string, "", "only sensors in this room").naming("room"),
                        param("report_current", T::boolean, "false",
                              "occupancy sensors: also report the current state at entry")});
@@ -620,7 +622,8 @@ void register_behaviors(BehaviorRegistry& registry) {
 
   // What each propagates (policy checks follow the events up a task's tree with these).
   registry.declare_events("Sense", {event_spec<OccupancyEvent>(), event_spec<MotionEvent>(), event_spec<SpeechEvent>(),
-                                    event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>()});
+                                    event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>(),
+                                    event_spec<MeasurementEvent>()});
   registry.declare_events("GoToUser", {{"ReachedUser", {"user", "x", "y"}}});
   registry.declare_events("PatrolHome", {{"WaypointReached", {"waypoint", "index"}}, {"MotionDetected", {"room", "device"}}});
   for (const char* quiet : {"GoTo", "VoiceTVControl", "VoiceAudioControl", "LookAtSound", "MoodControl", "Speak", "SetLights"}) {

@@ -1,6 +1,6 @@
 // The adaptor services of the home's capabilities (idl/home.idl, ICARS paper 5.1): the Service
 // objects SF makes for a TV, a light, a speaker, a microphone, the robot's wheels and camera,
-// the sensors of the house, and the simulation's clock. adaptors() puts them all in an
+// the sensors of the house, its covers, fans and heating, and the simulation's clock. adaptors() puts them all in an
 // AdaptorFactory for a ServerOptions or a ServiceFramework.
 #pragma once
 
@@ -121,6 +121,50 @@ class OccupancyService final
   bool changed_from(const home::OccupancyEvent& last, const home::OccupancyEvent& reading) const override {
     return last.occupied != reading.occupied;
   }
+};
+
+// A sensor's readings (temperature, humidity, illuminance, ...), an event on every change.
+class MeasurementService final
+    : public service::SensorAdaptor<home::MeasurementSensorPrx, home::MeasurementListener, home::MeasurementEvent,
+                           home::MeasurementListener::on_measurement> {
+ public:
+  MeasurementService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : SensorAdaptor("MeasurementSensor", d, c) {}
+
+ protected:
+  void reread(const home::MeasurementSensorPrx& sensor) override;
+  bool changed_from(const home::MeasurementEvent& last, const home::MeasurementEvent& reading) const override {
+    return last.value != reading.value;
+  }
+};
+
+// Blinds, shutters, curtains. The state it restores is where the cover was last heading after
+// an acknowledged command ("open" for opening too, "closed" for closing).
+class CoverService final : public service::AdaptorOf<home::CoverPrx> {
+ public:
+  CoverService(const df::DeviceInfo& d, const df::CapabilityInfo& c) : AdaptorOf("CoverControl", d, c) {}
+  bool keeps_state() const override { return true; }
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) override;
+  void apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
+};
+
+// An on/off device other than a light. Its service type says what it is, from the name of its
+// capability: "FanControl" for a `fan`, "ClimateControl" for a `climate` (heating, air
+// conditioning), "PowerControl" for any other; a policy switching fans does not switch heating.
+class PowerSwitchService final : public service::AdaptorOf<home::PowerSwitchPrx> {
+ public:
+  PowerSwitchService(const df::DeviceInfo& d, const df::CapabilityInfo& c)
+      : AdaptorOf(service_type(c.name), d, c) {}
+  bool keeps_state() const override { return true; }
+  static std::string service_type(std::string_view capability);
+
+ protected:
+  bool is_command(std::string_view method) const override;
+  void read_state(std::function<void(std::exception_ptr, service::DeviceState)> done) override;
+  void apply_state(const service::DeviceState& wanted, std::function<void(std::exception_ptr)> done) override;
 };
 
 }  // namespace icars::home
