@@ -34,7 +34,7 @@ using nlohmann::json;
 
 namespace {
 
-enum class Kind { light, on_off_switch, occupancy, motion };
+enum class Kind { light, on_off_switch, occupancy, motion, measurement, cover, fan, climate };
 
 std::string_view type_of(Kind k) {
   switch (k) {
@@ -46,6 +46,14 @@ std::string_view type_of(Kind k) {
       return "Occupancy";
     case Kind::motion:
       return "MotionSensor";
+    case Kind::measurement:
+      return "MeasurementSensor";
+    case Kind::cover:
+      return "Cover";
+    case Kind::fan:
+      return "Fan";
+    case Kind::climate:
+      return "Climate";
   }
   return "";
 }
@@ -60,28 +68,79 @@ std::string_view capability_of(Kind k) {
       return "occupancy";
     case Kind::motion:
       return "motion";
+    case Kind::measurement:
+      return "measurement";
+    case Kind::cover:
+      return "cover";
+    case Kind::fan:
+      return "fan";
+    case Kind::climate:
+      return "climate";
   }
   return "";
 }
+
+// The device classes of `sensor` entities whose state is a number: the quantity of their
+// MeasurementEvents is the device class.
+constexpr std::string_view kMeasuredQuantities[] = {"temperature",
+                                                    "humidity",
+                                                    "illuminance",
+                                                    "pressure",
+                                                    "atmospheric_pressure",
+                                                    "carbon_dioxide",
+                                                    "carbon_monoxide",
+                                                    "pm1",
+                                                    "pm25",
+                                                    "pm10",
+                                                    "volatile_organic_compounds",
+                                                    "power",
+                                                    "energy",
+                                                    "voltage",
+                                                    "current",
+                                                    "sound_pressure",
+                                                    "battery"};
 
 // The device kind of an entity, or why it has none.
 std::optional<Kind> kind_of(const bm::Entity& e, std::string& why) {
   const auto& c = e.where.component;
   if (c == "light") return Kind::light;
   if (c == "switch") return Kind::on_off_switch;
+  if (c == "fan") return Kind::fan;
+  if (c == "cover") return Kind::cover;
   if (c == "binary_sensor") {
     if (e.device_class == "occupancy" || e.device_class == "presence") return Kind::occupancy;
     if (e.device_class == "motion") return Kind::motion;
     why = fmt::format(
         "a binary_sensor of device_class '{}' has no ICARS interface (occupancy, presence and "
-        "motion "
-        "have); not registered",
+        "motion have); not registered",
         e.device_class);
     return std::nullopt;
   }
+  if (c == "sensor") {
+    const auto& q = kMeasuredQuantities;
+    if (std::find(std::begin(q), std::end(q), e.device_class) != std::end(q)) {
+      return Kind::measurement;
+    }
+    why = fmt::format(
+        "a sensor of device_class '{}' has no ICARS interface (these have: {}); not registered",
+        e.device_class, fmt::join(std::begin(q), std::end(q), ", "));
+    return std::nullopt;
+  }
+  if (c == "climate") {
+    const auto& m = e.modes;
+    const bool can_be_off = std::find(m.begin(), m.end(), "off") != m.end();
+    const bool can_be_on =
+        std::any_of(m.begin(), m.end(), [](const auto& x) { return x != "off"; });
+    if (can_be_off && can_be_on) return Kind::climate;
+    why = fmt::format(
+        "a climate whose modes ({}) lack 'off' or another mode cannot be switched on and off; "
+        "not registered",
+        fmt::join(m, ", "));
+    return std::nullopt;
+  }
   why = fmt::format(
-      "component '{}' has no ICARS device type yet (light, switch and binary_sensor have); not "
-      "registered",
+      "component '{}' has no ICARS device type yet (light, switch, binary_sensor, sensor, cover, "
+      "fan and climate have); not registered",
       c);
   return std::nullopt;
 }
@@ -109,6 +168,16 @@ std::optional<int> parse_int(std::string_view s) {
   int v = 0;
   const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
   if (ec != std::errc() || end != s.data() + s.size()) return std::nullopt;
+  return v;
+}
+
+// A reading: a finite number, with spaces around it allowed.
+std::optional<double> parse_number(std::string_view s) {
+  while (!s.empty() && s.front() == ' ') s.remove_prefix(1);
+  while (!s.empty() && s.back() == ' ') s.remove_suffix(1);
+  double v = 0;
+  const auto [end, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (ec != std::errc() || end != s.data() + s.size() || !std::isfinite(v)) return std::nullopt;
   return v;
 }
 
@@ -178,10 +247,58 @@ class MotionCapability final : public home::MotionSensorServant {
   p::Publisher<home::MotionEvent> events_{home::MotionListener::on_motion};
 };
 
+class MeasurementCapability final : public home::MeasurementSensorServant {
+ public:
+  // `no_reading`: the message value() fails with before the first reading.
+  MeasurementCapability(std::string device, std::string quantity, std::string unit,
+                        std::string room, std::string no_reading, std::function<std::int64_t()> now)
+      : device_(std::move(device)),
+        quantity_(std::move(quantity)),
+        unit_(std::move(unit)),
+        room_(std::move(room)),
+        no_reading_(std::move(no_reading)),
+        now_(std::move(now)) {}
+  double value(const p::Current&) override {
+    std::lock_guard lock(mutex_);
+    if (!value_) throw p::Error(p::ErrorKind::failed, no_reading_);
+    return *value_;
+  }
+  std::string quantity(const p::Current&) override { return quantity_; }
+  std::string unit(const p::Current&) override { return unit_; }
+  void subscribe(home::MeasurementListenerPrx l, const p::Current&) override {
+    events_.subscribe(l);
+  }
+  void unsubscribe(home::MeasurementListenerPrx l, const p::Current&) override {
+    events_.unsubscribe(l);
+  }
+  void update(double value) {
+    {
+      std::lock_guard lock(mutex_);
+      if (value_ == value) return;
+      value_ = value;
+    }
+    events_.publish(home::MeasurementEvent{device_, quantity_, value, unit_, room_, now_()});
+  }
+
+ private:
+  std::string device_;
+  std::string quantity_;
+  std::string unit_;
+  std::string room_;
+  std::string no_reading_;
+  std::function<std::int64_t()> now_;
+  std::mutex mutex_;
+  std::optional<double> value_;
+  p::Publisher<home::MeasurementEvent> events_{home::MeasurementListener::on_measurement};
+};
+
+enum class CoverCommand { open, close, stop };
+
 // The state a command asks for.
 struct Wanted {
-  bool on = false;
-  std::optional<int> brightness;  // on the entity's brightness scale
+  bool on = false;                    // a light, switch, fan or climate
+  std::optional<int> brightness;      // on the entity's brightness scale
+  std::optional<CoverCommand> cover;  // a cover's command (`on` means nothing then)
 };
 
 // A command waiting on the io thread for its entity's state topic to confirm it.
@@ -267,6 +384,16 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
     return home::LightState{on, on ? 100 : 0};
   }
 
+  home::CoverState cover_state(const std::string& unique_id) const {
+    std::lock_guard lock(mutex_);
+    return home::CoverState{entities_.at(unique_id).position};
+  }
+
+  bool power_on(const std::string& unique_id) const {
+    std::lock_guard lock(mutex_);
+    return entities_.at(unique_id).on.value_or(false);
+  }
+
   // What set_intensity(percent) asks for, or OutOfRange.
   Wanted intensity(const std::string& unique_id, std::int32_t percent) const {
     std::lock_guard lock(mutex_);
@@ -283,11 +410,12 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
                         "on)",
                         label(r), percent));
       }
-      return Wanted{percent == 100, std::nullopt};
+      return Wanted{percent == 100, std::nullopt, std::nullopt};
     }
-    if (percent == 0) return Wanted{false, std::nullopt};
+    if (percent == 0) return Wanted{false, std::nullopt, std::nullopt};
     const int scale = r.entity.brightness_scale;
-    return Wanted{true, std::max(1, static_cast<int>(std::lround(percent * scale / 100.0)))};
+    return Wanted{true, std::max(1, static_cast<int>(std::lround(percent * scale / 100.0))),
+                  std::nullopt};
   }
 
  private:
@@ -300,12 +428,15 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
     bool removed = false;  // its config was removed
     std::optional<bool> on;
     std::optional<int> brightness;
+    std::string position = "unknown";  // a cover's, as CoverState says it
+    std::string on_mode;               // the non-off mode a climate last reported
     std::map<std::string, std::string> availability_said;  // topic → last payload
     std::string latest_availability;                       // the topic heard last
     bool online = false;                                   // as told to the device manager
     std::vector<std::shared_ptr<Waiter>> waiters;
     std::shared_ptr<OccupancyCapability> occupancy;
     std::shared_ptr<MotionCapability> motion;
+    std::shared_ptr<MeasurementCapability> measurement;
   };
 
   static std::string label(const Record& r) {
@@ -477,6 +608,19 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
         r.motion = c;
         return c;
       }
+      case Kind::measurement: {
+        auto c = std::make_shared<MeasurementCapability>(
+            r.device_id, r.entity.device_class, r.entity.unit, r.room,
+            fmt::format("{}: no reading yet on '{}'", label(r), r.entity.state_topic),
+            options_.now_ms);
+        r.measurement = c;
+        return c;
+      }
+      case Kind::cover:
+        return make_cover(r);
+      case Kind::fan:
+      case Kind::climate:
+        return make_power_switch(r);
       case Kind::light:
       case Kind::on_off_switch:
         break;
@@ -485,7 +629,8 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
     const std::weak_ptr<Core> weak = weak_from_this();
     const std::string id = r.entity.unique_id;
     servant->implement(home::Light::set_power, [weak, id](bool on) {
-      return command(alive(weak), id, Wanted{on, std::nullopt}, on ? "turn it on" : "turn it off");
+      return command(alive(weak), id, Wanted{on, std::nullopt, std::nullopt},
+                     on ? "turn it on" : "turn it off");
     });
     servant->implement(home::Light::set_intensity, [weak, id](std::int32_t percent) {
       auto self = alive(weak);
@@ -493,6 +638,33 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
       return command(std::move(self), id, wanted, fmt::format("set its intensity to {}%", percent));
     });
     servant->implement(home::Light::state, [weak, id]() { return alive(weak)->light_state(id); });
+    return servant;
+  }
+
+  std::shared_ptr<p::Servant> make_cover(const Record& r) {
+    auto servant = std::make_shared<p::Servant>(std::string(home::Cover::type_id));
+    const std::weak_ptr<Core> weak = weak_from_this();
+    const std::string id = r.entity.unique_id;
+    const auto send = [weak, id](CoverCommand c, std::string what) {
+      return command(alive(weak), id, Wanted{false, std::nullopt, c}, std::move(what));
+    };
+    servant->implement(home::Cover::open, [send]() { return send(CoverCommand::open, "open it"); });
+    servant->implement(home::Cover::close,
+                       [send]() { return send(CoverCommand::close, "close it"); });
+    servant->implement(home::Cover::stop, [send]() { return send(CoverCommand::stop, "stop it"); });
+    servant->implement(home::Cover::state, [weak, id]() { return alive(weak)->cover_state(id); });
+    return servant;
+  }
+
+  std::shared_ptr<p::Servant> make_power_switch(const Record& r) {
+    auto servant = std::make_shared<p::Servant>(std::string(home::PowerSwitch::type_id));
+    const std::weak_ptr<Core> weak = weak_from_this();
+    const std::string id = r.entity.unique_id;
+    servant->implement(home::PowerSwitch::set_power, [weak, id](bool on) {
+      return command(alive(weak), id, Wanted{on, std::nullopt, std::nullopt},
+                     on ? "turn it on" : "turn it off");
+    });
+    servant->implement(home::PowerSwitch::on, [weak, id]() { return alive(weak)->power_on(id); });
     return servant;
   }
 
@@ -640,25 +812,86 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
         }
       }
     }
-    bool on = false;
     if (value) {
-      if (*value == e.state_on) {
-        on = true;
-      } else if (*value != e.state_off) {
-        error = fmt::format("'{}' is neither '{}' (on) nor '{}' (off)", *value, e.state_on,
-                            e.state_off);
-        value.reset();
-      }
+      error = take(r, *value, brightness);
+      if (!error.empty()) value.reset();
     }
     if (!value) {
       problem(fmt::format("{}: state of {} ignored: {}", topic, label(r), error));
       return false;
     }
+    return true;
+  }
+
+  // Under mutex_: the entity takes the state its state topic reported; or, when the state
+  // contradicts its config, nothing changes and the reason is returned.
+  static std::string take(Record& r, const std::string& value, std::optional<int> brightness) {
+    const auto& e = r.entity;
+    switch (r.kind) {
+      case Kind::measurement: {
+        const auto v = parse_number(value);
+        if (!v) return fmt::format("'{}' is not a number", value);
+        r.measurement->update(*v);
+        return "";
+      }
+      case Kind::cover: {
+        const std::pair<const std::string&, const char*> positions[] = {
+            {e.state_open, "open"},
+            {e.state_closed, "closed"},
+            {e.state_opening, "opening"},
+            {e.state_closing, "closing"},
+            {e.state_stopped, "stopped"}};
+        for (const auto& [said, position] : positions) {
+          if (value == said) {
+            r.position = position;
+            return "";
+          }
+        }
+        return fmt::format(
+            "'{}' is none of '{}' (open), '{}' (closed), '{}' (opening), '{}' "
+            "(closing) and '{}' (stopped)",
+            value, e.state_open, e.state_closed, e.state_opening, e.state_closing, e.state_stopped);
+      }
+      case Kind::climate:
+        if (value == "off") {
+          r.on = false;
+        } else if (std::find(e.modes.begin(), e.modes.end(), value) != e.modes.end()) {
+          r.on = true;
+          r.on_mode = value;
+        } else {
+          return fmt::format("mode '{}' is none of its modes ({})", value,
+                             fmt::join(e.modes, ", "));
+        }
+        return "";
+      case Kind::light:
+      case Kind::on_off_switch:
+      case Kind::occupancy:
+      case Kind::motion:
+      case Kind::fan:
+        break;
+    }
+    bool on = false;
+    if (value == e.state_on) {
+      on = true;
+    } else if (value != e.state_off) {
+      return fmt::format("'{}' is neither '{}' (on) nor '{}' (off)", value, e.state_on,
+                         e.state_off);
+    }
     r.on = on;
     if (brightness) r.brightness = brightness;
     if (r.occupancy) r.occupancy->update(on);
     if (r.motion) r.motion->update(on);
-    return true;
+    return "";
+  }
+
+  // Under mutex_: the mode a climate is switched on in: the one it last ran in, or else the
+  // first of its modes other than "off" (kind_of made sure there is one).
+  static std::string on_mode(const Record& r) {
+    if (!r.on_mode.empty()) return r.on_mode;
+    for (const auto& m : r.entity.modes) {
+      if (m != "off") return m;
+    }
+    return "";
   }
 
   // Under mutex_: whether the entity may be used, and if not, why.
@@ -720,6 +953,17 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
   }
 
   static bool satisfied(const Record& r, const Wanted& w) {
+    if (w.cover) {
+      // Open and close are done once the cover moves that way; a stop once it does not move.
+      switch (*w.cover) {
+        case CoverCommand::open:
+          return r.position == "open" || r.position == "opening";
+        case CoverCommand::close:
+          return r.position == "closed" || r.position == "closing";
+        case CoverCommand::stop:
+          return r.position == "open" || r.position == "closed" || r.position == "stopped";
+      }
+    }
     if (r.on != w.on) return false;
     if (!w.brightness || !reports_brightness(r)) return true;
     if (!r.brightness) return false;
@@ -794,7 +1038,14 @@ asio::awaitable<void> MqttDevices::Core::command(std::shared_ptr<Core> self, std
                      fmt::format("{}: cannot {}: it is offline ({}); nothing sent to '{}'", label,
                                  what, why, command_topic));
     }
-    if (e.schema == "json") {
+    if (wanted.cover) {
+      const auto c = *wanted.cover;
+      messages.push_back({command_topic, c == CoverCommand::open    ? e.payload_open
+                                         : c == CoverCommand::close ? e.payload_close
+                                                                    : e.payload_stop});
+    } else if (r.kind == Kind::climate) {
+      messages.push_back({command_topic, wanted.on ? on_mode(r) : std::string("off")});
+    } else if (e.schema == "json") {
       json command = {{"state", wanted.on ? "ON" : "OFF"}};
       if (wanted.brightness) command["brightness"] = *wanted.brightness;
       messages.push_back({command_topic, command.dump()});

@@ -5,7 +5,8 @@
 // the device's state topic confirms them and fail with a clear error when it never does, when
 // the device is offline or when the broker is gone; sensor changes reach subscribers on the
 // server; availability takes services away and brings them back; configs the bridge cannot use
-// are reported and the bridge goes on.
+// are reported and the bridge goes on. Besides lights, switches and occupancy and motion sensors:
+// a temperature sensor's readings, a cover's open/close/stop, a fan's and a thermostat's power.
 #include "icars/home/mqtt/entity_devices.h"
 
 #include <fmt/format.h>
@@ -15,6 +16,8 @@
 #include <algorithm>
 #include <chrono>
 #include <future>
+#include <iterator>
+#include <map>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -63,7 +66,11 @@ class MqttDevicesTest : public ::testing::Test {
     auto& c = sf_.container();
     return c.find(ServiceQuery::of_type("LightControl").available()).size() == 3 &&
            c.find(ServiceQuery::of_type("OccupancySensor").available()).size() == 1 &&
-           c.find(ServiceQuery::of_type("MotionSensor").available()).size() == 1;
+           c.find(ServiceQuery::of_type("MotionSensor").available()).size() == 1 &&
+           c.find(ServiceQuery::of_type("MeasurementSensor").available()).size() == 1 &&
+           c.find(ServiceQuery::of_type("CoverControl").available()).size() == 1 &&
+           c.find(ServiceQuery::of_type("FanControl").available()).size() == 1 &&
+           c.find(ServiceQuery::of_type("ClimateControl").available()).size() == 1;
   }
 
   std::string describe_services() {
@@ -85,6 +92,17 @@ class MqttDevicesTest : public ::testing::Test {
     if (manager_port_ == 0) manager_port_ = manager_side_.listen("127.0.0.1", 0);
     return home::LightPrx(caller_, caller_.connect("127.0.0.1", manager_port_),
                           "/devices/" + device + "/light");
+  }
+
+  template <class S>
+  std::shared_ptr<S> service(const std::string& type, const std::string& device) {
+    return sf_.container().find_first<S>(ServiceQuery::of_type(type).on_device(device).available());
+  }
+
+  std::size_t problems_with(const std::string& part) const {
+    const auto all = bridge_->problems();
+    return static_cast<std::size_t>(std::count_if(
+        all.begin(), all.end(), [&](const auto& p) { return p.find(part) != std::string::npos; }));
   }
 
   bool online(const std::string& device_id) const {
@@ -137,14 +155,39 @@ TEST_F(MqttDevicesTest, DiscoveredEntitiesBecomeServicesFoundByTypeAndRoom) {
   ASSERT_EQ(bed.size(), 1u);
   EXPECT_EQ(bed[0]->attributes().device, "bed_occupancy") << "from the placement table";
   EXPECT_EQ(c.find(ServiceQuery::of_type("MotionSensor").in_room("hallway")).size(), 1u);
+  EXPECT_EQ(c.find(ServiceQuery::of_type("MeasurementSensor").in_room("bedroom")).size(), 1u);
+  EXPECT_EQ(c.find(ServiceQuery::of_type("CoverControl").in_room("living_room")).size(), 1u);
+  EXPECT_EQ(c.find(ServiceQuery::of_type("FanControl").in_room("bedroom")).size(), 1u);
+  EXPECT_EQ(c.find(ServiceQuery::of_type("ClimateControl").in_room("living_room")).size(), 1u);
+  EXPECT_TRUE(c.find(ServiceQuery::of_type("LightControl").in_room("bedroom")).size() == 1)
+      << "a fan is not a light";
 
   const auto devices = bridge_->devices();
-  ASSERT_EQ(devices.size(), 5u);
-  for (const auto& d : devices) EXPECT_TRUE(d.online) << d.device_id;
+  ASSERT_EQ(devices.size(), std::size(mqtt_test::kFleetDevices));
+  std::map<std::string, std::string> types;
+  for (const auto& d : devices) {
+    EXPECT_TRUE(d.online) << d.device_id;
+    types[d.device_id] = d.type;
+  }
+  EXPECT_EQ(types["bedroom_temp_z2m"], "MeasurementSensor");
+  EXPECT_EQ(types["living_blind_z2m"], "Cover");
+  EXPECT_EQ(types["bedroom_fan_z2m"], "Fan");
+  EXPECT_EQ(types["living_thermostat_z2m"], "Climate");
   auto occupancy = c.find_first<OccupancyService>(ServiceQuery::of_type("OccupancySensor"));
   ASSERT_TRUE(occupancy);
   EXPECT_EQ(occupancy->proxy().furniture(), "bed");
   EXPECT_FALSE(occupancy->proxy().occupied());
+  auto temperature = service<MeasurementService>("MeasurementSensor", "bedroom_temp_z2m");
+  ASSERT_TRUE(temperature);
+  EXPECT_EQ(temperature->proxy().quantity(), "temperature");
+  EXPECT_EQ(temperature->proxy().unit(), "°C");
+  EXPECT_EQ(temperature->proxy().value(), 21.5) << "the retained state";
+  auto blind = service<CoverService>("CoverControl", "living_blind_z2m");
+  ASSERT_TRUE(blind);
+  EXPECT_EQ(blind->proxy().state().position, "closed");
+  auto thermostat = service<PowerSwitchService>("ClimateControl", "living_thermostat_z2m");
+  ASSERT_TRUE(thermostat);
+  EXPECT_FALSE(thermostat->proxy().on()) << "mode off";
   EXPECT_TRUE(bridge_->problems().empty());
 }
 
@@ -262,6 +305,141 @@ TEST_F(MqttDevicesTest, OccupancyAndMotionChangesReachSubscribersOnTheServer) {
   EXPECT_EQ(m.room, "hallway");
 }
 
+TEST_F(MqttDevicesTest, TemperatureChangesReachSubscribersAndANonNumericReadingIsReportedOnce) {
+  start();
+  auto sensor = service<MeasurementService>("MeasurementSensor", "bedroom_temp_z2m");
+  ASSERT_TRUE(sensor);
+  std::mutex mutex;
+  std::vector<home::MeasurementEvent> heard;
+  const auto subscription =
+      planet_test::subscribe_scoped(*sensor, [&](const home::MeasurementEvent& e) {
+        std::lock_guard lock(mutex);
+        heard.push_back(e);
+      });
+  const auto heard_value = [&](double value) {
+    std::lock_guard lock(mutex);
+    return std::any_of(heard.begin(), heard.end(), [&](const auto& e) { return e.value == value; });
+  };
+  // The adaptor subscribes to its sensor asynchronously after registration: change the reading
+  // until a change reaches the server.
+  double reading = 22.0;
+  ASSERT_TRUE(planet_test::wait_until(
+      [&] {
+        if (heard_value(reading)) return true;
+        reading += 0.5;
+        fleet_.set_measurement("bedroom_temp", reading);
+        std::this_thread::sleep_for(100ms);  // lets the change travel before the next one
+        return false;
+      },
+      30s));
+  {
+    std::lock_guard lock(mutex);
+    const auto e = *std::find_if(heard.begin(), heard.end(),
+                                 [&](const auto& m) { return m.value == reading; });
+    EXPECT_EQ(e.device, "bedroom_temp_z2m");
+    EXPECT_EQ(e.quantity, "temperature");
+    EXPECT_EQ(e.unit, "°C");
+    EXPECT_EQ(e.room, "bedroom");
+    EXPECT_GT(e.time_ms, 0);
+  }
+  EXPECT_EQ(sensor->proxy().value(), reading);
+
+  // A reading that is not a number is reported once and ignored; the next number is an event.
+  const auto topic = mqtt_test::Fleet::state_topic("bedroom_temp");
+  fleet_.publish(topic, R"({"temperature":"warm","humidity":45})");
+  fleet_.publish(topic, R"({"temperature":"warm","humidity":45})");
+  fleet_.set_measurement("bedroom_temp", 30.25);
+  ASSERT_TRUE(planet_test::wait_until([&] { return heard_value(30.25); }));
+  EXPECT_EQ(problems_with("zigbee2mqtt/bedroom_temp: state of sensor 'Bedroom temperature' "
+                          "(bedroom_temp_z2m) ignored: 'warm' is not a number"),
+            1u)
+      << fmt::format("{}", fmt::join(bridge_->problems(), "\n"));
+  EXPECT_EQ(sensor->proxy().value(), 30.25);
+  std::lock_guard lock(mutex);
+  const auto events_of_30 =
+      std::count_if(heard.begin(), heard.end(), [](const auto& e) { return e.value == 30.25; });
+  EXPECT_EQ(events_of_30, 1) << "an event for every change, one per change";
+}
+
+TEST_F(MqttDevicesTest, ACoverMovesAndAFanAndAThermostatSwitchOnlyOnceTheDeviceConfirms) {
+  start();
+  fleet_.set_delay(400ms);  // the devices report their new state this late
+  auto blind = service<CoverService>("CoverControl", "living_blind_z2m");
+  ASSERT_TRUE(blind);
+  auto before = std::chrono::steady_clock::now();
+  blind->proxy().open();
+  EXPECT_GE(std::chrono::steady_clock::now() - before, 350ms)
+      << "acknowledged before the cover confirmed";
+  EXPECT_EQ(fleet_.position("living_blind"), "open");
+  EXPECT_EQ(fleet_.commands("living_blind"), 1);
+  ASSERT_TRUE(planet_test::wait_until([&] { return blind->proxy().state().position == "open"; }))
+      << "'opening' confirmed it; 'open' follows";
+  blind->proxy().close();
+  EXPECT_EQ(fleet_.position("living_blind"), "closed");
+  // A stop is confirmed by any state at rest: the fleet's "closed" after its "closing" may be
+  // the one, so the test waits for the fleet to have the stop rather than assume it has.
+  blind->proxy().stop();
+  EXPECT_TRUE(planet_test::wait_until([&] { return fleet_.commands("living_blind") == 3; }));
+  EXPECT_EQ(blind->proxy().state().position, "closed");
+
+  auto fan = service<PowerSwitchService>("FanControl", "bedroom_fan_z2m");
+  ASSERT_TRUE(fan);
+  before = std::chrono::steady_clock::now();
+  fan->proxy().set_power(true);
+  EXPECT_GE(std::chrono::steady_clock::now() - before, 350ms)
+      << "acknowledged before the fan confirmed";
+  EXPECT_EQ(fleet_.on("bedroom_fan"), true);
+  EXPECT_TRUE(fan->proxy().on());
+  fan->proxy().set_power(false);
+  EXPECT_EQ(fleet_.on("bedroom_fan"), false);
+  EXPECT_FALSE(fan->proxy().on());
+
+  // A thermostat is switched by its mode: on is its first mode other than "off" ...
+  fleet_.set_delay(0ms);
+  auto thermostat = service<PowerSwitchService>("ClimateControl", "living_thermostat_z2m");
+  ASSERT_TRUE(thermostat);
+  thermostat->proxy().set_power(true);
+  EXPECT_EQ(fleet_.mode("living_thermostat"), "heat");
+  EXPECT_TRUE(thermostat->proxy().on());
+  // ... or the mode it last ran in.
+  fleet_.publish(mqtt_test::Fleet::state_topic("living_thermostat"), R"({"system_mode":"auto"})",
+                 true);
+  thermostat->proxy().set_power(false);
+  EXPECT_EQ(fleet_.mode("living_thermostat"), "off");
+  EXPECT_FALSE(thermostat->proxy().on());
+  thermostat->proxy().set_power(true);
+  EXPECT_EQ(fleet_.mode("living_thermostat"), "auto");
+  EXPECT_TRUE(bridge_->problems().empty())
+      << fmt::format("{}", fmt::join(bridge_->problems(), "\n"));
+}
+
+TEST_F(MqttDevicesTest, ACoverOrFanCommandTheDeviceIgnoresFailsAfterTheTimeout) {
+  start(1s);
+  fleet_.ignore_commands(true);
+  auto fan = service<PowerSwitchService>("FanControl", "bedroom_fan_z2m");
+  auto blind = service<CoverService>("CoverControl", "living_blind_z2m");
+  ASSERT_TRUE(fan && blind);
+  p::ErrorKind kind{};
+  auto error = error_of([&] { fan->proxy().set_power(true); }, &kind);
+  EXPECT_EQ(kind, p::ErrorKind::timeout) << error;
+  EXPECT_NE(error.find("fan 'Bedroom fan'"), std::string::npos) << error;
+  EXPECT_NE(error.find("esphome/bedroom_fan/command"), std::string::npos) << error;
+  EXPECT_NE(error.find("1000 ms"), std::string::npos) << error;
+  EXPECT_EQ(fleet_.commands("bedroom_fan"), 1) << "the command was sent";
+  EXPECT_FALSE(fan->proxy().on());
+
+  kind = {};
+  error = error_of([&] { blind->proxy().open(); }, &kind);
+  EXPECT_EQ(kind, p::ErrorKind::timeout) << error;
+  EXPECT_NE(error.find("cover 'Living blind'"), std::string::npos) << error;
+  EXPECT_NE(error.find("open it"), std::string::npos) << error;
+  EXPECT_EQ(blind->proxy().state().position, "closed");
+
+  fleet_.ignore_commands(false);
+  blind->proxy().open();
+  EXPECT_EQ(fleet_.position("living_blind"), "open");
+}
+
 TEST_F(MqttDevicesTest, AnOfflineDeviceLeavesTheServerAndComesBackWhenOnline) {
   start();
   ASSERT_TRUE(light("kettle_z2m"));
@@ -352,13 +530,31 @@ TEST_F(MqttDevicesTest, ConfigsAndStatesTheBridgeCannotUseAreReportedAndItGoesOn
                  R"({"name":"Temp","state_topic":"temp/state"})", true);
   fleet_.publish("homeassistant/binary_sensor/door/config",
                  R"({"name":"Door","device_class":"door","state_topic":"door/state"})", true);
+  fleet_.publish("homeassistant/sensor/mode/config",
+                 R"({"name":"Mode","device_class":"enum","state_topic":"mode/state"})", true);
+  fleet_.publish("homeassistant/climate/ac/config",
+                 R"({"name":"AC","mode_command_topic":"ac/set","modes":["heat","cool"]})", true);
   fleet_.publish(mqtt_test::Fleet::state_topic("kettle"), R"({"state":"MAYBE"})");
   fleet_.publish(mqtt_test::Fleet::state_topic("bed_sensor"), R"({"battery":80})");
+  fleet_.publish(mqtt_test::Fleet::state_topic("living_blind"), "ajar");
+  fleet_.publish(mqtt_test::Fleet::state_topic("living_thermostat"), R"({"system_mode":"cool"})");
   ASSERT_TRUE(planet_test::wait_until([&] {
     return has_problem("homeassistant/light/broken/config: the config is not JSON") &&
            has_problem("homeassistant/vacuum/robo/config: component 'vacuum' is not supported") &&
            has_problem(
-               "homeassistant/sensor/temp/config: component 'sensor' has no ICARS device type") &&
+               "homeassistant/sensor/temp/config: a sensor of device_class '' has no "
+               "ICARS interface") &&
+           has_problem("homeassistant/sensor/mode/config: a sensor of device_class 'enum'") &&
+           has_problem(
+               "homeassistant/climate/ac/config: a climate whose modes (heat, cool) "
+               "lack 'off'") &&
+           has_problem(
+               "esphome/living_blind/state: state of cover 'Living blind' "
+               "(living_blind_z2m) ignored: 'ajar' is none of 'open'") &&
+           has_problem(
+               "zigbee2mqtt/living_thermostat: state of climate 'Living thermostat' "
+               "(living_thermostat_z2m) ignored: mode 'cool' is none of its modes (off, "
+               "heat, auto)") &&
            has_problem(
                "homeassistant/binary_sensor/door/config: a binary_sensor of device_class 'door'") &&
            has_problem(
@@ -381,7 +577,7 @@ TEST_F(MqttDevicesTest, ConfigsAndStatesTheBridgeCannotUseAreReportedAndItGoesOn
   const auto count = bridge_->problems().size();
   fleet_.publish(mqtt_test::Fleet::state_topic("kettle"),
                  R"({"state":"MAYBE"})");  // logged once only
-  EXPECT_EQ(bridge_->devices().size(), 6u);
+  EXPECT_EQ(bridge_->devices().size(), std::size(mqtt_test::kFleetDevices) + 1);
 
   auto kettle = light("kettle_z2m");
   ASSERT_TRUE(kettle);

@@ -3,7 +3,8 @@
 // MediatingServer on the wall clock running a policy. Motion in the hall (an MQTT binary sensor)
 // moves the statechart, whose task switches the living-room lamp (an MQTT light) on — done only
 // once the lamp's state topic confirmed it. With the lamp offline, the same task fails and the
-// policy's `failed` transition takes over.
+// policy's `failed` transition takes over. A temperature from an MQTT sensor reaches a policy's
+// rules through a Sense behavior like any other sensor's events.
 #include <gtest/gtest.h>
 
 #include <unistd.h>
@@ -53,12 +54,55 @@ constexpr const char* kPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
 </policy>
 )xml";
 
+// A policy that watches the bedroom's temperature.
+constexpr const char* kWarmPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="too_warm">
+  <task name="Watch" events="TooWarm">
+    <interpret name="Bedroom">
+      <rule when="event == 'MeasurementEvent' and quantity == 'temperature' and value > 25" emit="TooWarm"/>
+      <behavior type="Sense" service="MeasurementSensor" room="bedroom"/>
+    </interpret>
+  </task>
+  <task name="Cool">
+    <behavior type="Wait" duration="1h"/>
+  </task>
+  <statechart initial="Watching">
+    <state name="Watching" task="Watch"><transition event="TooWarm" target="Cooling"/></state>
+    <state name="Cooling" task="Cool"/>
+  </statechart>
+</policy>
+)xml";
+
+// The fleet on a broker of its own and the bridge registering its devices with a server.
+struct MqttHome {
+  MqttHome(std::uint16_t server_port, MqttDevicesOptions options)
+      : fleet(broker.port()), client(client_options(broker.port())), manager(manager_side),
+        devices(client, manager, std::move(options)) {
+    client.start();
+    manager.connect("127.0.0.1", server_port);
+    fleet.start();
+  }
+  static bm::ClientOptions client_options(int port) {
+    bm::ClientOptions o;
+    o.port = port;
+    o.client_id = "icars-bridge";
+    return o;
+  }
+  bridge_test::Broker broker;
+  mqtt_test::Fleet fleet;
+  bm::Client client;
+  planet::Communicator manager_side;
+  device::DeviceManager manager;
+  MqttDevices devices;
+};
+
 class MqttPolicy : public ::testing::Test {
  protected:
   void SetUp() override {
     dir_ = fs::temp_directory_path() / ("icars_mqtt_policy_" + std::to_string(::getpid()));
     fs::create_directories(dir_);
     std::ofstream(dir_ / "hall_light.xml") << kPolicy;
+    std::ofstream(dir_ / "too_warm.xml") << kWarmPolicy;
     server::ServerOptions o;
     o.adaptors = adaptors();
     o.composers = {composer()};
@@ -91,20 +135,10 @@ class MqttPolicy : public ::testing::Test {
 };
 
 TEST_F(MqttPolicy, MotionOnAnMqttSensorSwitchesAnMqttLampAndAnOfflineLampFailsTheTask) {
-  bridge_test::Broker broker;
-  mqtt_test::Fleet fleet(broker.port());
-  bm::ClientOptions client_options;
-  client_options.port = broker.port();
-  client_options.client_id = "icars-bridge";
-  bm::Client client(client_options);
-  planet::Communicator manager_side;
-  device::DeviceManager manager(manager_side);
   MqttDevicesOptions options;
   options.placements[mqtt_test::Fleet::unique_id("living_lamp")] = Placement{"living_light", "living_room", ""};
-  MqttDevices devices(client, manager, options);
-  client.start();
-  manager.connect("127.0.0.1", port_);
-  fleet.start();
+  MqttHome home(port_, options);
+  auto& fleet = home.fleet;
   auto& c = server_->container();
   ASSERT_TRUE(planet_test::wait_until([&] {
     return c.find(service::ServiceQuery::of_type("LightControl").in_room("living_room").available()).size() == 1 &&
@@ -149,6 +183,31 @@ TEST_F(MqttPolicy, MotionOnAnMqttSensorSwitchesAnMqttLampAndAnOfflineLampFailsTh
   ASSERT_FALSE(all.empty());
   EXPECT_NE(all.back().find("Lighting -> InTrouble on failed"), std::string::npos) << all.back();
   EXPECT_NE(all.back().find("no available light"), std::string::npos) << all.back();
+  server_->stop();
+}
+
+TEST_F(MqttPolicy, ATemperatureFromAnMqttSensorReachesThePolicysRules) {
+  MqttHome home(port_, {});
+  auto& c = server_->container();
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    return c.find(service::ServiceQuery::of_type("MeasurementSensor").in_room("bedroom").available()).size() == 1;
+  }, 30s));
+  server_->trace().add_sink([this](const behavior::TraceRecord& r) {
+    if (r.kind != "transition") return;
+    std::lock_guard lock(mutex_);
+    transitions_.push_back(r.text);
+  });
+  server_->use_clock(clock_);
+  server_->run_policy("too_warm");
+  // The room warms up, a quarter degree every 200 ms (the Sense behavior subscribes as the
+  // policy starts, so a change before that is not heard).
+  int looks = 0;
+  double temperature = 24.0;
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    if (looks++ % 40 == 0) home.fleet.set_measurement("bedroom_temp", temperature += 0.25);
+    return took("Watching -> Cooling on TooWarm");
+  }, 60s)) << ::testing::PrintToString(transitions());
+  EXPECT_GT(temperature, 25.0) << "moved before the temperature was above 25";
   server_->stop();
 }
 

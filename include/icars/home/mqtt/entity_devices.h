@@ -17,16 +17,27 @@
 //   binary_sensor, class occupancy or presence
 //                                        capability `occupancy`  home::OccupancySensor
 //   binary_sensor, class motion          capability `motion`     home::MotionSensor
+//   sensor, class temperature, humidity, illuminance, pressure, carbon_dioxide, ...
+//                                        capability `measurement` home::MeasurementSensor
+//                                        (quantity: the device class; unit: unit_of_measurement)
+//   cover                                capability `cover`      home::Cover
+//   fan                                  capability `fan`        home::PowerSwitch
+//   climate (modes with "off" and another)
+//                                        capability `climate`    home::PowerSwitch (by its mode:
+//                                        "off", or the mode it last ran in)
 // Any other entity is logged once (its config topic and why) and left out.
 //
 // A command is published to the entity's command topic and acknowledged only when its state
 // topic reports the wanted state; without that within `command_timeout` the call fails with
 // planet::Error(timeout) naming the entity, the command topic and the timeout. A command for an
 // entity that is offline, or while the client is not connected to the broker, fails at once
-// (planet::Error(failed)) with the reason. An entity without a state topic is optimistic: its
-// commands are acknowledged once published. Sensors publish an event on every change of their
-// state topic. An entity whose availability says offline is unregistered from the server (its
-// services leave the container) and registered again when it is back online.
+// (planet::Error(failed)) with the reason. A cover's open and close are confirmed once it
+// reports moving that way (or being there), its stop once it reports not moving. An entity
+// without a state topic is optimistic: its commands are acknowledged once published. Sensors
+// publish an event on every change of their state topic; a state that contradicts the entity's
+// config (a reading that is not a number, an unknown mode) is logged once and ignored. An entity
+// whose availability says offline is unregistered from the server (its services leave the
+// container) and registered again when it is back online.
 #pragma once
 
 #include <chrono>
@@ -76,7 +87,9 @@ struct MqttDevicesOptions {
 struct EntityDevice {
   std::string unique_id;
   std::string device_id;
-  std::string type;  // "Light", "Switch", "Occupancy", "MotionSensor"
+  // "Light", "Switch", "Occupancy", "MotionSensor", "MeasurementSensor", "Cover", "Fan",
+  // "Climate"
+  std::string type;
   std::string room;
   std::string config_topic;
   bool online = false;  // registered with the server (or to be, once the link is up)

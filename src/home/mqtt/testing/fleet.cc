@@ -96,6 +96,45 @@ json config_of(const std::string& device) {
             {"availability", {{{"topic", availability_topic(device)}}}},
             {"device", {{"identifiers", {"esp_hall"}}, {"suggested_area", "Hallway"}}}};
   }
+  if (device == "bedroom_temp") {
+    return {{"name", "Bedroom temperature"},
+            {"unique_id", Fleet::unique_id(device)},
+            {"device_class", "temperature"},
+            {"state_class", "measurement"},
+            {"unit_of_measurement", "°C"},
+            {"state_topic", Fleet::state_topic(device)},
+            {"value_template", "{{ value_json.temperature }}"},
+            {"availability", {{{"topic", availability_topic(device)}}}},
+            {"device",
+             {{"identifiers", {"zigbee2mqtt_0x0017880100000005"}}, {"suggested_area", "Bedroom"}}}};
+  }
+  if (device == "living_blind") {  // ESPHome: Home Assistant's default payloads and states
+    return {{"name", "Living blind"},
+            {"unique_id", Fleet::unique_id(device)},
+            {"device_class", "blind"},
+            {"state_topic", Fleet::state_topic(device)},
+            {"command_topic", Fleet::command_topic(device)},
+            {"availability", {{{"topic", availability_topic(device)}}}},
+            {"device", {{"identifiers", {"esp_blind"}}, {"suggested_area", "Living Room"}}}};
+  }
+  if (device == "bedroom_fan") {
+    return {{"name", "Bedroom fan"},
+            {"unique_id", Fleet::unique_id(device)},
+            {"state_topic", Fleet::state_topic(device)},
+            {"command_topic", Fleet::command_topic(device)},
+            {"availability", {{{"topic", availability_topic(device)}}}},
+            {"device", {{"identifiers", {"esp_fan"}}, {"suggested_area", "Bedroom"}}}};
+  }
+  if (device == "living_thermostat") {  // zigbee2mqtt's radiator valve, abbreviated keys
+    return {{"name", "Living thermostat"},
+            {"uniq_id", Fleet::unique_id(device)},
+            {"mode_cmd_t", Fleet::command_topic(device)},
+            {"mode_stat_t", Fleet::state_topic(device)},
+            {"mode_stat_tpl", "{{ value_json.system_mode }}"},
+            {"modes", {"off", "heat", "auto"}},
+            {"avty", {{{"topic", availability_topic(device)}}}},
+            {"dev", {{"ids", {"zigbee2mqtt_0x0017880100000009"}}, {"sa", "Living Room"}}}};
+  }
   throw std::invalid_argument("the fleet has no device '" + device + "'");
 }
 
@@ -122,6 +161,11 @@ std::string Fleet::config_topic(const std::string& device) {
   if (device == "living_lamp") return "homeassistant/light/living_lamp/config";
   if (device == "bedroom_lamp") return "homeassistant/light/0x0017880100000001/light/config";
   if (device == "kettle") return "homeassistant/switch/0x0017880100000003/switch/config";
+  if (device == "bedroom_temp") return "homeassistant/sensor/0x0017880100000005/temperature/config";
+  if (device == "living_blind") return "homeassistant/cover/living_blind/config";
+  if (device == "bedroom_fan") return "homeassistant/fan/bedroom_fan/config";
+  if (device == "living_thermostat")
+    return "homeassistant/climate/0x0017880100000009/climate/config";
   return "homeassistant/binary_sensor/" + device + "/config";
 }
 
@@ -129,17 +173,22 @@ std::string Fleet::config(const std::string& device) { return config_of(device).
 
 std::string Fleet::command_topic(const std::string& device) {
   if (device == "living_lamp") return "tasmota/living_lamp/cmnd/POWER";
+  if (device == "living_blind" || device == "bedroom_fan") return "esphome/" + device + "/command";
+  if (device == "living_thermostat") return "zigbee2mqtt/" + device + "/set/system_mode";
   return "zigbee2mqtt/" + device + "/set";
 }
 
 std::string Fleet::state_topic(const std::string& device) {
   if (device == "living_lamp") return "tasmota/living_lamp/stat/POWER";
-  if (device == "hall_motion") return "esphome/hall_motion/state";
+  if (device == "hall_motion" || device == "living_blind" || device == "bedroom_fan")
+    return "esphome/" + device + "/state";
   return "zigbee2mqtt/" + device;
 }
 
 void Fleet::start() {
   client_.subscribe("zigbee2mqtt/+/set");
+  client_.subscribe("zigbee2mqtt/+/set/+");
+  client_.subscribe("esphome/+/command");
   client_.subscribe("tasmota/living_lamp/cmnd/#");
   client_.start();
   if (!client_.wait_connected(std::chrono::seconds(20))) {
@@ -183,6 +232,14 @@ void Fleet::set_sensor(const std::string& device, bool on) {
   publish_state(device);
 }
 
+void Fleet::set_measurement(const std::string& device, double value) {
+  {
+    std::lock_guard lock(mutex_);
+    devices_.at(device).value = value;
+  }
+  publish_state(device);
+}
+
 void Fleet::publish(const std::string& topic, const std::string& payload, bool retain) {
   client_.publish(topic, payload, retain);
 }
@@ -192,6 +249,16 @@ std::optional<bool> Fleet::on(const std::string& device) const {
   const auto it = devices_.find(device);
   if (it == devices_.end()) return std::nullopt;
   return it->second.on;
+}
+
+std::string Fleet::position(const std::string& device) const {
+  std::lock_guard lock(mutex_);
+  return devices_.at(device).position;
+}
+
+std::string Fleet::mode(const std::string& device) const {
+  std::lock_guard lock(mutex_);
+  return devices_.at(device).mode;
 }
 
 int Fleet::brightness(const std::string& device) const {
@@ -222,6 +289,14 @@ void Fleet::publish_state(const std::string& device) {
                     true);
   } else if (device == "bed_sensor") {
     client_.publish(state_topic(device), json{{"occupancy", d.on}, {"battery", 90}}.dump(), true);
+  } else if (device == "bedroom_temp") {
+    client_.publish(state_topic(device),
+                    json{{"temperature", d.value}, {"humidity", 45}, {"battery", 97}}.dump(), true);
+  } else if (device == "living_blind") {
+    client_.publish(state_topic(device), d.position, true);
+  } else if (device == "living_thermostat") {
+    client_.publish(state_topic(device),
+                    json{{"system_mode", d.mode}, {"local_temperature", 20.5}}.dump(), true);
   } else {
     client_.publish(state_topic(device), on_off, true);
   }
@@ -232,8 +307,11 @@ void Fleet::on_command(const bm::Message& m) {
   std::string device;
   if (m.topic.starts_with("tasmota/living_lamp/cmnd/")) {
     device = "living_lamp";
-  } else if (m.topic.starts_with("zigbee2mqtt/") && m.topic.ends_with("/set")) {
-    device = m.topic.substr(12, m.topic.size() - 12 - 4);
+  } else if (m.topic.starts_with("zigbee2mqtt/")) {  // zigbee2mqtt/<device>/set[/<attribute>]
+    const auto set = m.topic.find("/set", 12);
+    if (set != std::string::npos) device = m.topic.substr(12, set - 12);
+  } else if (m.topic.starts_with("esphome/") && m.topic.ends_with("/command")) {
+    device = m.topic.substr(8, m.topic.size() - 8 - 8);
   }
   std::chrono::milliseconds delay{0};
   {
@@ -247,10 +325,25 @@ void Fleet::on_command(const bm::Message& m) {
   }
   // The new state is decided now and reported after the delay, as a slow device would.
   const auto apply = [this, device, topic = m.topic, payload = m.payload] {
+    std::string moving;  // a cover reports moving before it reports where it stopped
     {
       std::lock_guard lock(mutex_);
       Device& d = devices_.at(device);
-      if (device == "bedroom_lamp") {
+      if (device == "living_blind") {
+        if (payload == "OPEN") {
+          moving = "opening";
+          d.position = "open";
+        } else if (payload == "CLOSE") {
+          moving = "closing";
+          d.position = "closed";
+        } else if (payload != "STOP") {
+          return;
+        }
+      } else if (device == "living_thermostat") {
+        if (payload != "off" && payload != "heat" && payload != "auto") return;
+        d.mode = payload;
+        d.on = payload != "off";
+      } else if (device == "bedroom_lamp") {
         const json command = json::parse(payload, nullptr, false);
         if (command.is_discarded()) return;
         if (const auto s = command.find("state"); s != command.end() && s->is_string())
@@ -272,6 +365,7 @@ void Fleet::on_command(const bm::Message& m) {
       }
     }
     try {
+      if (!moving.empty()) client_.publish(state_topic(device), moving, true);
       publish_state(device);
     } catch (const bm::Error&) {
       // The fleet is stopping: the broker no longer hears it, as with a device switched off.

@@ -12,6 +12,14 @@
 //   bed_sensor    binary_sensor, device_class occupancy, state {"occupancy":true,...} read by
 //                 value_template with payload_on true, area "Bedroom"
 //   hall_motion   binary_sensor, device_class motion, plain "ON"/"OFF", area "Hallway"
+//   bedroom_temp  sensor, device_class temperature in °C, state {"temperature":21.5,...} read by
+//                 value_template, area "Bedroom"
+//   living_blind  cover (ESPHome): "OPEN"/"CLOSE"/"STOP" commands, plain states "opening" then
+//                 "open", "closing" then "closed"; starts closed; area "Living Room"
+//   bedroom_fan   fan (ESPHome), plain "ON"/"OFF" on its command and state topics, area "Bedroom"
+//   living_thermostat
+//                 climate (a zigbee2mqtt radiator valve): modes off, heat and auto on
+//                 .../set/system_mode, state {"system_mode":"off",...}; area "Living Room"
 #pragma once
 
 #include <asio/executor_work_guard.hpp>
@@ -29,7 +37,8 @@
 namespace mqtt_test {
 
 inline constexpr const char* kFleetDevices[] = {"bedroom_lamp", "living_lamp", "kettle",
-                                                "bed_sensor", "hall_motion"};
+                                                "bed_sensor",   "hall_motion", "bedroom_temp",
+                                                "living_blind", "bedroom_fan", "living_thermostat"};
 
 class Fleet {
  public:
@@ -48,13 +57,17 @@ class Fleet {
   void ignore_commands(bool ignore);                // counted, but neither obeyed nor answered
   void set_online(const std::string& device, bool online);  // its own availability topic
   void set_bridge_online(bool online);  // zigbee2mqtt/bridge/state (bedroom_lamp needs it too)
-  void set_sensor(const std::string& device, bool on);  // bed_sensor or hall_motion
+  void set_sensor(const std::string& device, bool on);            // bed_sensor or hall_motion
+  void set_measurement(const std::string& device, double value);  // bedroom_temp
   void publish(const std::string& topic, const std::string& payload, bool retain = false);
 
   // --- What the devices are ---
-  std::optional<bool> on(const std::string& device) const;  // nullopt: unknown device
-  int brightness(const std::string& device) const;          // on the device's own scale
-  int commands(const std::string& device) const;            // commands received
+  // nullopt: unknown device. A thermostat is on in any mode but "off"; a cover is never on.
+  std::optional<bool> on(const std::string& device) const;
+  std::string position(const std::string& device) const;  // a cover's: "open", "closed"
+  std::string mode(const std::string& device) const;      // a thermostat's: "off", "heat"
+  int brightness(const std::string& device) const;        // on the device's own scale
+  int commands(const std::string& device) const;          // commands received
   static std::string unique_id(const std::string& device);
   static std::string config_topic(const std::string& device);
   static std::string config(const std::string& device);  // its discovery config (JSON)
@@ -66,6 +79,9 @@ class Fleet {
     bool on = false;
     int brightness = 0;
     int commands = 0;
+    double value = 21.5;              // a sensor's reading
+    std::string position = "closed";  // a cover's
+    std::string mode = "off";         // a thermostat's
   };
   void on_command(const icars::bridge::mqtt::Message& m);
   // Publishes the device's state (retained), as that device shows it.
