@@ -1015,6 +1015,8 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
 
 asio::awaitable<void> MqttDevices::Core::command(std::shared_ptr<Core> self, std::string unique_id,
                                                  Wanted wanted, std::string what) {
+  // In lock-step, the simulated clock waits while the device confirms (on the wall clock).
+  const Activity::Hold busy(self->options_.activity.get());
   const auto executor = co_await asio::this_coro::executor;
   auto waiter = std::make_shared<Waiter>(executor);
   waiter->wanted = wanted;

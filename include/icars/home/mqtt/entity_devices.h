@@ -49,6 +49,7 @@
 #include <vector>
 
 #include "icars/bridge/mqtt/client.h"
+#include "icars/clock/activity.h"
 #include "icars/device/device_manager.h"
 
 namespace spdlog {
@@ -81,6 +82,9 @@ struct MqttDevicesOptions {
   // A simulated house in lock-step in this process waits for it before its clock moves
   // (home::SimulatedMqttDevices::handled).
   std::function<void(const bridge::mqtt::Message&)> handled;
+  // Lock-step (icars/clock/activity.h): a command waiting for its device to confirm it holds
+  // this activity, so a simulated clock of this process does not move meanwhile. Null: none.
+  std::shared_ptr<Activity> activity;
 };
 
 // One entity the bridge made a device of.
