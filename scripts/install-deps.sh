@@ -15,6 +15,8 @@ packages=(
   python3-jsonschema
   # clang with libFuzzer and the sanitizer runtimes for scripts/fuzz.sh
   clang libclang-rt-14-dev
+  # HTTP for the live dashboard (cpp-httplib)
+  libcpp-httplib-dev
   # MQTT for the bridges to real homes: the client library, and the broker and tools its tests start
   libmosquitto-dev mosquitto mosquitto-clients
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore

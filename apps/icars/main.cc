@@ -15,6 +15,9 @@
 //   --plugin PATH.so (run, validate, behaviors; repeatable)
 //       loads a plugin that adds behavior, adaptor and composer types (icars/server/plugin.h);
 //       a plugin that cannot be used stops the command with exit code 2 and the reason.
+//   icars replay TRACE --world HOUSE [--policy POLICY] [--http HOST:PORT]
+//       shows a recorded trace in the live dashboard, with a time slider (docs/dashboard.md).
+//   --http HOST:PORT (run): the live dashboard of the run (docs/dashboard.md).
 //   icars token NAME [--may-call PATTERN...] [--devices PATTERN...] [--max-devices N]
 //       makes a token for a device manager or agent: prints the token (for its --token-file) and
 //       the entry to add to the server's --access file (docs/security.md).
@@ -188,6 +191,17 @@ int main(int argc, char** argv) {
                     "a select of policies, a button per policy event, the robots and the devices");
   run_cmd->add_option("--ha-node-id", run.ha_node_id,
                       "the Home Assistant device the mediator is published as (default: icars_<house name>)");
+  // The live dashboard (docs/dashboard.md): the same options for run and replay.
+  const auto add_http_options = [](CLI::App& cmd, icars::app::DashboardSettings& settings) {
+    cmd.add_option("--http", settings.listen,
+                   "serve the live dashboard on HOST:PORT (loopback; another address needs --http-tls-cert)");
+    cmd.add_option("--http-token-file", settings.token_file,
+                   "the dashboard controls' token (its first line; default: a new one, in the printed URL)")
+        ->check(CLI::ExistingFile);
+    cmd.add_option("--http-tls-cert", settings.tls_cert, "the dashboard's TLS certificate (PEM)")->check(CLI::ExistingFile);
+    cmd.add_option("--http-tls-key", settings.tls_key, "the dashboard's TLS key (PEM)")->check(CLI::ExistingFile);
+  };
+  add_http_options(*run_cmd, run.dashboard);
   icars::app::add_tls_options(*run_cmd, run.tls, icars::app::Side::server);
   run_cmd->add_option("--access", run.access_file,
                       "access file: who may connect and what each may call (docs/security.md)")
@@ -202,6 +216,17 @@ int main(int argc, char** argv) {
   validate_cmd->add_option("--world", validate_world,
                            "also check the policies against this house: the rooms, waypoints, furniture, "
                            "devices, users and robots they name");
+
+  std::string replay_trace, replay_world, replay_policy;
+  icars::app::DashboardSettings replay_http;
+  auto* replay_cmd = app.add_subcommand("replay", "show a recorded trace (icars run --trace) in the dashboard");
+  replay_cmd->add_option("trace", replay_trace, "the trace file (JSON lines)")->required()->check(CLI::ExistingFile);
+  replay_cmd->add_option("--world", replay_world, "the house the trace was recorded on")->required()->check(CLI::ExistingFile);
+  replay_cmd->add_option("--policy", replay_policy, "the policy it ran, to draw its statechart and trees")
+      ->check(CLI::ExistingFile);
+  add_http_options(*replay_cmd, replay_http);
+  replay_http.listen = "127.0.0.1:8080";
+  replay_cmd->get_option("--http")->capture_default_str();
 
   auto* behaviors_cmd = app.add_subcommand("behaviors", "list the behavior types policies can use");
 
@@ -252,5 +277,6 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (*behaviors_cmd) return list_behaviors(plugins);
+  if (*replay_cmd) return icars::app::replay(replay_trace, replay_world, replay_policy, replay_http);
   return icars::app::run(run);
 }

@@ -290,6 +290,16 @@ int run(const RunOptions& options) {
   }
   const auto host = server->endpoint().host;
   std::printf("%s\n", app::server_announcement(host, bound, repository.path_of(options.policy), house.name).c_str());
+  // The live dashboard, from now on: it sees the house register and the policy start.
+  DriverControl driver_control;
+  std::shared_ptr<dashboard::Dashboard> board;
+  if (!options.dashboard.listen.empty()) {
+    try {
+      board = start_run_dashboard(options.dashboard, house, *server, driver_control);
+    } catch (const std::exception& e) {
+      return fail(2, fmt::format("--http {}: {}", options.dashboard.listen, e.what()));
+    }
+  }
 
   // --- The house: simulated device managers in this process, or elsewhere. -------------------
   std::unique_ptr<home::SimulatedHouse> simulated;
@@ -413,6 +423,7 @@ int run(const RunOptions& options) {
     pace.warn = [&trace](Time t, const std::string& what) { trace.record(note(t, what)); };
     driver.emplace(simulated->clock(), *activity, std::move(pace));
     driver->start();
+    driver_control.attach(&*driver);
   }
   bool interrupted = false;
   while (driver ? !driver->finished() : clock->now() < stop_at) {
@@ -425,6 +436,7 @@ int run(const RunOptions& options) {
       break;
     }
   }
+  driver_control.attach(nullptr);
   if (driver) driver->stop();
   const auto ended_at = clock->now();
   server->stop_policy(5s);

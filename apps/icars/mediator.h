@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "icars/planet/security.h"
+#include "live_dashboard.h"
 
 namespace icars::app {
 
@@ -35,6 +36,7 @@ struct RunOptions {
   // Assistant's view"), as the device `ha_node_id` (default: icars_<house name>).
   bool home_assistant = false;
   std::string ha_node_id;
+  DashboardSettings dashboard;  // --http: the live dashboard (docs/dashboard.md)
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

@@ -56,6 +56,24 @@ bool LockStepDriver::wait_finished(std::chrono::milliseconds timeout) {
   return finished_;
 }
 
+void LockStepDriver::set_speedup(double speedup) {
+  if (!(speedup >= 0) || !std::isfinite(speedup)) {
+    throw std::invalid_argument("LockStepDriver: speedup must be 0 (as fast as possible) or positive");
+  }
+  const bool was_running = running();
+  stop();
+  {
+    std::lock_guard lock(mutex_);
+    options_.speedup = speedup;  // run() reads it when it starts
+  }
+  if (was_running) start();
+}
+
+double LockStepDriver::speedup() const {
+  std::lock_guard lock(mutex_);
+  return options_.speedup;
+}
+
 std::uint64_t LockStepDriver::events_run() const {
   std::lock_guard lock(mutex_);
   return events_run_;
@@ -81,7 +99,7 @@ void LockStepDriver::settle() {
 
 void LockStepDriver::run(std::chrono::steady_clock::time_point wall_start, Time sim_start) {
   using namespace std::chrono;
-  const double speedup = options_.speedup;
+  const double speedup = this->speedup();
   const auto wall_for = [&](Time sim) {
     return wall_start + duration_cast<steady_clock::duration>(
                             duration<double, std::milli>(static_cast<double>((sim - sim_start).count()) / speedup));

@@ -79,6 +79,13 @@ std::string MediatingServer::policy_name() {
   return c ? c->policy().name : std::string();
 }
 
+std::optional<control::Policy> MediatingServer::running_policy() {
+  std::lock_guard lock(policy_mutex_);
+  const auto* c = coordinator();
+  if (!c) return std::nullopt;
+  return c->policy();
+}
+
 std::vector<std::string> MediatingServer::policy_events() {
   std::lock_guard lock(policy_mutex_);
   const auto* c = coordinator();

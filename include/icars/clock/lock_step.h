@@ -62,6 +62,11 @@ class LockStepDriver {
   // Waits until finished(), stop() or `timeout`; true when finished.
   bool wait_finished(std::chrono::milliseconds timeout = std::chrono::milliseconds::max());
 
+  // Paces from now on at `speedup` (0: as fast as the work allows): stops, and starts again if
+  // it was running. Throws std::invalid_argument for a negative or non-finite speedup.
+  void set_speedup(double speedup);
+  double speedup() const;
+
   std::uint64_t events_run() const;
   std::uint64_t settle_timeouts() const;
 
@@ -71,7 +76,7 @@ class LockStepDriver {
 
   SimClock& clock_;
   Activity& activity_;
-  const LockStepOptions options_;
+  LockStepOptions options_;  // speedup changes under mutex_ (set_speedup), the rest is fixed
   mutable std::mutex mutex_;      // guards what follows
   std::condition_variable done_;  // finished, or a stop asked for
   bool finished_ = false;

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -109,6 +110,8 @@ class MediatingServer {
   // The running policy's name and the events its transitions wait for (Coordinator::events);
   // empty when none runs. Thread-safe.
   std::string policy_name();
+  // A copy of the running policy (nullopt when none runs). Thread-safe.
+  std::optional<control::Policy> running_policy();
   std::vector<std::string> policy_events();
 
   // Puts another access policy in force: principals that `next` removes or changes lose their
