@@ -47,6 +47,8 @@ cmake --build build/release -j "$jobs"
 check "benchmark smoke run: planet_bench" build/release/bench/planet_bench --benchmark_min_time=0.01 >/dev/null
 check "benchmark smoke run: coros_scale" build/release/bench/coros_scale --agents 5 --runs 1 >/dev/null
 check "benchmark smoke run: upper_bench" build/release/bench/upper_bench --runs 1 >/dev/null
+check "benchmark smoke run: dashboard_bench" build/release/bench/dashboard_bench --runs 1 --records 5000 \
+  --latency-records 200 --days 1 >/dev/null
 check "benchmark smoke run: mqtt_bridge" build/release/bench/mqtt_bridge --runs 1 --commands 50 >/dev/null
 results=$(mktemp -d)
 build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \

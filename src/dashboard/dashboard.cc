@@ -91,6 +91,7 @@ struct Dashboard::Impl {
     }
     s["records"] = std::move(records);
     s["dropped"] = hub.dropped();
+    s["pages"] = hub.clients();
     return s;
   }
 
@@ -153,6 +154,9 @@ struct Dashboard::Impl {
   void routes() {
     auto& s = *server;
     s.set_payload_max_length(options.max_body);
+    // A batch of events is written as it is gathered: Nagle's algorithm would hold it for the
+    // page's delayed ACK (40 ms).
+    s.set_tcp_nodelay(true);
     s.new_task_queue = [threads = options.threads] { return new httplib::ThreadPool(threads); };
     s.Get("/", [](const httplib::Request&, httplib::Response& res) {
       const auto a = find_asset("index.html");
@@ -198,15 +202,13 @@ struct Dashboard::Impl {
       res.set_chunked_content_provider(
           "text/event-stream",
           [this, client](std::size_t, httplib::DataSink& sink) {
-            const auto batch = client->next(10s);
+            auto batch = client->next(10s);
             if (!batch || !running) {
               sink.done();
               return false;
             }
-            std::string out;
-            if (batch->empty()) out = ": keep-alive\n\n";
-            for (const auto& m : *batch) out += "event: " + m.event + "\ndata: " + m.data + "\n\n";
-            return sink.write(out.data(), out.size());
+            if (batch->empty()) *batch = ": keep-alive\n\n";
+            return sink.write(batch->data(), batch->size());
           },
           [this, client](bool) { hub.disconnect(client); });
     });

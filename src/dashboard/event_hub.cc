@@ -1,10 +1,15 @@
 #include "icars/dashboard/event_hub.h"
 
 #include <algorithm>
+#include <chrono>
+#include <utility>
 
 namespace icars::dashboard {
 
-void HubClient::push(const Message& m) {
+std::string server_sent_event(const Message& m) { return "event: " + m.event + "\ndata: " + m.data + "\n\n"; }
+
+void HubClient::push(const std::shared_ptr<const std::string>& event) {
+  bool first = false;
   {
     std::lock_guard lock(mutex_);
     if (closed_) return;
@@ -13,21 +18,29 @@ void HubClient::push(const Message& m) {
       ++dropped_unsaid_;
       return;
     }
-    queue_.push_back(m);
+    first = queue_.empty();
+    queue_.push_back(event);
   }
-  changed_.notify_one();
+  // Only the first of a batch wakes the page's thread; the rest join the batch it gathers.
+  if (first) changed_.notify_one();
 }
 
-std::optional<std::vector<Message>> HubClient::next(std::chrono::milliseconds wait) {
+std::optional<std::string> HubClient::next(std::chrono::milliseconds wait) {
   std::unique_lock lock(mutex_);
   changed_.wait_for(lock, wait, [this] { return closed_ || !queue_.empty() || dropped_unsaid_ > 0; });
+  if (!closed_ && linger_ > std::chrono::milliseconds::zero() && !queue_.empty()) {
+    changed_.wait_for(lock, linger_, [this] { return closed_; });
+  }
   if (closed_) return std::nullopt;
-  std::vector<Message> batch;
+  std::string batch;
   if (dropped_unsaid_ > 0) {
-    batch.push_back({"dropped", "{\"dropped\":" + std::to_string(dropped_unsaid_) + "}"});
+    batch = server_sent_event({"dropped", "{\"dropped\":" + std::to_string(dropped_unsaid_) + "}"});
     dropped_unsaid_ = 0;
   }
-  batch.insert(batch.end(), std::make_move_iterator(queue_.begin()), std::make_move_iterator(queue_.end()));
+  std::size_t size = batch.size();
+  for (const auto& e : queue_) size += e->size();
+  batch.reserve(size);
+  for (const auto& e : queue_) batch += *e;
   queue_.clear();
   return batch;
 }
@@ -49,36 +62,43 @@ std::uint64_t HubClient::dropped() const {
 EventHub::EventHub(EventHubOptions options) : options_(options) {}
 
 void EventHub::publish_record(const std::string& record_json) {
-  std::vector<std::shared_ptr<HubClient>> clients;
-  Message m{"record", {}};
+  std::shared_ptr<const Clients> clients;
+  std::shared_ptr<const std::string> event;
   {
     std::lock_guard lock(mutex_);
     const auto index = total_++;
     // {"t":... → {"index":N,"t":...}
-    m.data = record_json.size() >= 2 && record_json.front() == '{'
-                 ? "{\"index\":" + std::to_string(index) + (record_json.size() > 2 ? "," : "") + record_json.substr(1)
-                 : record_json;
-    history_.push_back(m.data);
+    auto data = record_json.size() >= 2 && record_json.front() == '{'
+                    ? "{\"index\":" + std::to_string(index) + (record_json.size() > 2 ? "," : "") + record_json.substr(1)
+                    : record_json;
+    if (!clients_->empty()) {
+      event = std::make_shared<const std::string>(server_sent_event({"record", data}));
+      clients = clients_;
+    }
+    history_.push_back(std::move(data));
     while (history_.size() > options_.history) history_.pop_front();
-    clients = clients_;
   }
-  for (const auto& c : clients) c->push(m);
+  if (!clients) return;
+  for (const auto& c : *clients) c->push(event);
 }
 
 void EventHub::broadcast(Message message) {
-  std::vector<std::shared_ptr<HubClient>> clients;
+  std::shared_ptr<const Clients> clients;
   {
     std::lock_guard lock(mutex_);
     clients = clients_;
   }
-  for (const auto& c : clients) c->push(message);
+  const auto event = std::make_shared<const std::string>(server_sent_event(message));
+  for (const auto& c : *clients) c->push(event);
 }
 
 std::shared_ptr<HubClient> EventHub::connect() {
   std::lock_guard lock(mutex_);
-  if (clients_.size() >= options_.max_clients) return nullptr;
-  auto c = std::shared_ptr<HubClient>(new HubClient(options_.queue));
-  clients_.push_back(c);
+  if (clients_->size() >= options_.max_clients) return nullptr;
+  auto c = std::shared_ptr<HubClient>(new HubClient(options_.queue, options_.linger));
+  auto next = std::make_shared<Clients>(*clients_);
+  next->push_back(c);
+  clients_ = std::move(next);
   return c;
 }
 
@@ -86,15 +106,17 @@ void EventHub::disconnect(const std::shared_ptr<HubClient>& client) {
   if (!client) return;
   client->close();
   std::lock_guard lock(mutex_);
-  const auto it = std::find(clients_.begin(), clients_.end(), client);
-  if (it == clients_.end()) return;
+  const auto it = std::find(clients_->begin(), clients_->end(), client);
+  if (it == clients_->end()) return;
   dropped_gone_ += client->dropped();
-  clients_.erase(it);
+  auto next = std::make_shared<Clients>(*clients_);
+  next->erase(next->begin() + (it - clients_->begin()));
+  clients_ = std::move(next);
 }
 
 std::size_t EventHub::clients() const {
   std::lock_guard lock(mutex_);
-  return clients_.size();
+  return clients_->size();
 }
 
 EventHub::History EventHub::history() const {
@@ -109,17 +131,17 @@ EventHub::History EventHub::history() const {
 std::uint64_t EventHub::dropped() const {
   std::lock_guard lock(mutex_);
   std::uint64_t n = dropped_gone_;
-  for (const auto& c : clients_) n += c->dropped();
+  for (const auto& c : *clients_) n += c->dropped();
   return n;
 }
 
 void EventHub::close_all() {
-  std::vector<std::shared_ptr<HubClient>> clients;
+  std::shared_ptr<const Clients> clients;
   {
     std::lock_guard lock(mutex_);
-    clients.swap(clients_);
+    clients = std::exchange(clients_, std::make_shared<const Clients>());
   }
-  for (const auto& c : clients) {
+  for (const auto& c : *clients) {
     c->close();
     std::lock_guard lock(mutex_);
     dropped_gone_ += c->dropped();

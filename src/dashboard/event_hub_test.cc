@@ -35,12 +35,13 @@ TEST(EventHub, EachPageGetsWhatIsPublishedAfterItConnected) {
   hub.broadcast({"services", "[]"});
   const auto got_a = a->next(1s);
   ASSERT_TRUE(got_a);
-  ASSERT_EQ(got_a->size(), 3u);
-  EXPECT_EQ((*got_a)[0].data, "{\"index\":1,\"t\":1}");
-  EXPECT_EQ((*got_a)[2].event, "services");
+  EXPECT_EQ(*got_a,
+            "event: record\ndata: {\"index\":1,\"t\":1}\n\n"
+            "event: record\ndata: {\"index\":2,\"t\":2}\n\n"
+            "event: services\ndata: []\n\n");
   const auto got_b = b->next(1s);
   ASSERT_TRUE(got_b);
-  EXPECT_EQ(got_b->size(), 2u);
+  EXPECT_EQ(*got_b, "event: record\ndata: {\"index\":2,\"t\":2}\n\nevent: services\ndata: []\n\n");
   // Nothing new: an empty batch after the wait (a keep-alive), not a hang.
   const auto idle = a->next(10ms);
   ASSERT_TRUE(idle);
@@ -57,9 +58,7 @@ TEST(EventHub, AStuckPageIsDroppedAndToldNeverSlowingThePublisher) {
     while (read < 100'000) {
       const auto b = reader->next(1s);
       if (!b) return;
-      for (const auto& m : *b) {
-        if (m.event == "record") ++read;
-      }
+      for (auto at = b->find("event: record"); at != std::string::npos; at = b->find("event: record", at + 1)) ++read;
     }
   });
   for (int i = 0; i < 100'000; ++i) hub.publish_record("{\"t\":1}");
@@ -68,9 +67,7 @@ TEST(EventHub, AStuckPageIsDroppedAndToldNeverSlowingThePublisher) {
   EXPECT_EQ(stuck->dropped(), 100'000u - 100u);
   const auto told = stuck->next(1s);
   ASSERT_TRUE(told);
-  ASSERT_EQ(told->size(), 101u);
-  EXPECT_EQ(told->front().event, "dropped");
-  EXPECT_EQ(told->front().data, "{\"dropped\":99900}");
+  EXPECT_TRUE(told->starts_with("event: dropped\ndata: {\"dropped\":99900}\n\nevent: record\n")) << told->substr(0, 100);
   hub.close_all();
   drain.join();
   EXPECT_FALSE(stuck->next(10ms)) << "a closed page's stream ends";
