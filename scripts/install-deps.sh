@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs every Debian package that building, running and testing ICARS needs
-# (with --peers, also what the side-by-side benchmarks compare against).
-# Idempotent: prints nothing and touches nothing when all packages are present.
+# (with --peers, also what the side-by-side benchmarks compare against), and the node modules of
+# the dashboard's browser tests (tests/browser/package-lock.json).
+# Idempotent: prints nothing and touches nothing when all packages and modules are present.
 set -euo pipefail
 
 packages=(
@@ -21,7 +22,11 @@ packages=(
   libmosquitto-dev mosquitto mosquitto-clients
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
   libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
+  # the dashboard's browser tests (tests/browser): node runs them, puppeteer-core drives chromium
+  nodejs chromium
 )
+# npm comes with some builds of nodejs and is a package of its own in Debian's.
+command -v npm >/dev/null || packages+=(npm)
 
 # `--peers`: also the systems bench/compare.sh measures PLANET against, and gnuplot for its plot.
 if [ "${1:-}" = "--peers" ]; then
@@ -33,13 +38,24 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-[ ${#missing[@]} -eq 0 ] && exit 0
-
-if [ "$(id -u)" -ne 0 ]; then
-  echo "install-deps: missing packages: ${missing[*]}; run as root or install them with apt-get" >&2
-  exit 1
+if [ ${#missing[@]} -gt 0 ]; then
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "install-deps: missing packages: ${missing[*]}; run as root or install them with apt-get" >&2
+    exit 1
+  fi
+  echo "install-deps: installing ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq >/dev/null
+  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
-echo "install-deps: installing ${missing[*]}"
-export DEBIAN_FRONTEND=noninteractive
-apt-get update -qq >/dev/null
-apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+
+# The browser tests' node modules, exactly as tests/browser/package-lock.json pins them (no browser:
+# puppeteer-core drives Debian's chromium). Installed again only when the lock file changed since.
+browser="$(cd "$(dirname "$0")/.." && pwd)/tests/browser"
+stamp="$browser/node_modules/.installed-from-lock"
+lock_sum=$(sha256sum < "$browser/package-lock.json")
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$lock_sum" ]; then
+  echo "install-deps: installing tests/browser's node modules"
+  npm ci --prefix "$browser" --no-audit --no-fund --loglevel=error >/dev/null
+  echo "$lock_sum" > "$stamp"
+fi
