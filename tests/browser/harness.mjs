@@ -15,7 +15,8 @@ import path from "node:path";
 export const WAIT_MS = 60_000;   // the bound of every wait on the page or on icars
 const TEST_MS = 240_000;         // the whole test, below ctest's TIMEOUT of 300 s
 
-// --icars BINARY --source DIR [--out DIR] [--chromium BINARY]
+// --icars BINARY --source DIR [--out DIR] [--chromium BINARY]; --out is where screenshots go
+// (default: icars-browser-screenshots in the temporary directory).
 export function parseArgs(argv) {
   const args = { chromium: process.env.ICARS_CHROMIUM || "/usr/bin/chromium", out: "" };
   for (let i = 0; i < argv.length; ++i) {
@@ -91,7 +92,7 @@ class TestContext {
     this.args = args;
     this.source = path.resolve(args.source);
     this.tmp = mkdtempSync(path.join(tmpdir(), `icars-${name}-`));
-    this.out = args.out ? path.resolve(args.out) : this.tmp;
+    this.out = path.resolve(args.out || path.join(tmpdir(), "icars-browser-screenshots"));
     mkdirSync(this.out, { recursive: true });
     this.processes = [];
     this.browser = null;
