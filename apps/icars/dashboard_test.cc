@@ -101,7 +101,8 @@ TEST(IcarsDashboard, ARunsDashboardShowsItAndItsControlsDriveIt) {
   // A policy that does not load: its error; the running one goes on.
   r = c.Post("/api/policy", auth, R"({"name":"no_such_policy"})", "application/json");
   EXPECT_EQ(r->status, 422);
-  EXPECT_NE(r->body.find("no_such_policy.xml:0: error: cannot read the policy file"), std::string::npos) << r->body;
+  EXPECT_NE(r->body.find("\"no_such_policy.xml:0: error: cannot read the policy file"), std::string::npos)
+      << r->body;  // named from the repository: the server's directories stay its own
   EXPECT_EQ(get(c, "/api/snapshot")["policy"]["name"], "paper_home");
 
   // Paused, the simulated clock stands still; resumed and faster, it goes on.

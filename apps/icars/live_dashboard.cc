@@ -123,8 +123,15 @@ std::shared_ptr<dashboard::Dashboard> start_run_dashboard(const DashboardSetting
       server.run_policy(name);
       return {{"policy", parsed.policy.name}};
     } catch (const control::PolicyError& e) {
+      // Files named from the repository, as the operator chose them: the page does not need to
+      // learn where the server keeps its policies.
+      const auto prefix = server.policies().directory() + "/";
       std::vector<std::string> lines;
-      for (const auto& d : e.diagnostics()) lines.push_back(d.to_string());
+      for (const auto& d : e.diagnostics()) {
+        auto line = d.to_string();
+        if (line.starts_with(prefix)) line.erase(0, prefix.size());
+        lines.push_back(std::move(line));
+      }
       throw ControlError(422, fmt::format("{}", fmt::join(lines, "\n")));
     }
   };
