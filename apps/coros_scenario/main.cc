@@ -6,7 +6,7 @@
 //       [--kill robot2@to_dropoff | --kill robot2@3s] [--faults "drop=0.2,duplicate=0.2,delay=0.3"]
 //       [--svg out.svg] [--json summary.json] [--agent-bin PATH] [--keep-dir DIR] [--timeout 120]
 //       [--delivery-interval MS] [--bid-window MS] [--neighbor-expiry MS] [--broadcast-port P]
-//       [--verbose]
+//       [--http 127.0.0.1:8080 [--http-linger S]] [--verbose]
 //
 // Starts N robot agents and a user agent (icars-agent), lets the user auction the deliveries,
 // optionally kills a robot, and prints per delivery the bids of each round, the winners,
@@ -69,6 +69,14 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   run->add_option("--broadcast-port", options.broadcast_port,
                   "the agents' shared UDP broadcast port (default: a free one)");
+  run->add_option("--http", options.http,
+                  "serve the dashboard's fleet page on HOST:PORT (loopback unless TLS; port 0: any)");
+  run->add_option("--http-tls-cert", options.http_tls_cert, "the dashboard's TLS certificate (PEM)");
+  run->add_option("--http-tls-key", options.http_tls_key, "the dashboard's TLS key (PEM)");
+  run->add_option("--http-linger", options.http_linger_s,
+                  "with --http, keep serving this many seconds after the summary (negative: until "
+                  "SIGINT or SIGTERM)")
+      ->capture_default_str();
   run->add_flag("--verbose,-v", options.verbose, "print every agent event as it comes");
 
   try {

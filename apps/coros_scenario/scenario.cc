@@ -22,6 +22,7 @@
 #include <set>
 
 #include "agent_process.h"
+#include "fleet_dashboard.h"
 #include "icars/coros/transport.h"
 #include "icars/sim/svg_plot.h"
 #include "scenario_report.h"
@@ -115,12 +116,13 @@ void write_private_file(const fs::path& file, const std::string& text) {
 class ScenarioRunner {
  public:
   ScenarioRunner(const ScenarioPlan& plan, const ScenarioOptions& options, fs::path agent_bin,
-                 ScenarioReport& report, double started_at)
+                 ScenarioReport& report, double started_at, FleetDashboard* fleet)
       : plan_(plan),
         options_(options),
         agent_bin_(std::move(agent_bin)),
         report_(report),
-        started_at_(started_at) {}
+        started_at_(started_at),
+        fleet_(fleet) {}
 
   void run() {
     // Robots first; the user once every robot is up (or has ended), so that its auctions
@@ -179,7 +181,13 @@ class ScenarioRunner {
   const std::string& problem() const { return problem_; }
 
  private:
+  // Prints a line of the run; the page gets it too (print() only prints: what the agents'
+  // events already told the page).
   void say(const std::string& text) const {
+    print(text);
+    if (fleet_) fleet_->note(text);
+  }
+  void print(const std::string& text) const {
     std::printf("[%6.2fs] %s\n", wall_now() - started_at_, text.c_str());
     std::fflush(stdout);
   }
@@ -239,8 +247,13 @@ class ScenarioRunner {
         const bool expected =
             stopping_ || killed_.count(p->id()) > 0 || (p->id() == kUserId && report_.all_done());
         if (!expected) say(fmt::format("{} ended unexpectedly ({})", p->id(), describe(*p)));
+        if (fleet_) {
+          fleet_->note(fmt::format("{} ended ({})", p->id(), describe(*p)),
+                       {{"event", "exited"}, {"agent", p->id()}, {"expected", expected}});
+        }
       }
     }
+    if (fleet_) fleet_->poll_tracks();
   }
 
   void handle(AgentProcess& from, const std::string& line) {
@@ -250,9 +263,10 @@ class ScenarioRunner {
       if (options_.verbose) say(fmt::format("{} (not an event): {}", from.id(), line));
       return;
     }
-    if (options_.verbose) say(fmt::format("{}: {}", from.id(), line));
+    if (options_.verbose) print(fmt::format("{}: {}", from.id(), line));
+    if (fleet_) fleet_->agent_event(from.id(), event);
     const std::string note = report_.on_event(event);
-    if (!note.empty() && !options_.verbose) say(note);
+    if (!note.empty() && !options_.verbose) print(note);
     // A kill at a stage: the robot's own event says it reached it.
     const auto& kill = options_.kill;
     if (kill && !kill->stage.empty() && from.id() == kill->robot &&
@@ -282,7 +296,9 @@ class ScenarioRunner {
     }
     p->signal(SIGKILL);
     report_.robot_killed(id, wall_now(), why);
-    say(fmt::format("killed {} (SIGKILL) {}", id, why));
+    const auto text = fmt::format("killed {} (SIGKILL) {}", id, why);
+    print(text);
+    if (fleet_) fleet_->note(text, {{"event", "killed"}, {"robot", id}, {"reason", why}});
   }
 
   // SIGTERM to every agent still running, SIGKILL to those still there after 2 s; their
@@ -313,6 +329,7 @@ class ScenarioRunner {
   fs::path agent_bin_;
   ScenarioReport& report_;
   double started_at_;
+  FleetDashboard* fleet_;  // null without --http
   std::vector<std::unique_ptr<AgentProcess>> processes_;
   std::set<std::string> killed_;
   bool stopping_ = false, timed_out_ = false, interrupted_ = false;
@@ -347,8 +364,20 @@ int run_scenario(const ScenarioOptions& options) {
   ::sigaction(SIGTERM, &stop, nullptr);
   ::signal(SIGPIPE, SIG_IGN);
 
+  std::unique_ptr<FleetDashboard> fleet;
+  if (!options.http.empty()) {
+    dashboard::DashboardOptions http;
+    http.listen = options.http;
+    http.tls_cert = options.http_tls_cert;
+    http.tls_key = options.http_tls_key;
+    fleet = std::make_unique<FleetDashboard>(plan, std::move(http), started_at);
+    fleet->start(options);
+    std::printf("[icars-coros] dashboard: %s\n", fleet->url().c_str());
+    std::fflush(stdout);
+  }
+
   ScenarioReport report(plan, options, started_at);
-  ScenarioRunner runner(plan, options, agent_bin, report, started_at);
+  ScenarioRunner runner(plan, options, agent_bin, report, started_at, fleet.get());
   runner.run();
   for (const auto& a : plan.agents) {  // a missing one shows in the report ("no track file")
     if (a.role == "robot") report.load_track(a.id, a.track_file);
@@ -358,6 +387,12 @@ int run_scenario(const ScenarioOptions& options) {
 
   std::printf("\n%s", report.to_text().c_str());
   int code = report.succeeded() ? 0 : 1;
+  if (fleet) {
+    fleet->poll_tracks(/*now=*/true);  // the robots' last positions
+    fleet->summary(report.succeeded(),
+                   report.succeeded() ? "every delivery succeeded" : "not every delivery succeeded",
+                   report.to_json());
+  }
   if (!options.json.empty()) {
     try {
       write_file(options.json, report.to_json().dump(2) + "\n");
@@ -381,6 +416,17 @@ int run_scenario(const ScenarioOptions& options) {
     std::printf("Agent configurations, logs and tracks kept in %s\n", dir.path().c_str());
   }
   std::fflush(stdout);
+  if (fleet && options.http_linger_s != 0 && g_interrupted.load() == 0) {
+    if (options.http_linger_s < 0) {
+      std::printf("[icars-coros] the dashboard stays at %s until interrupted (Ctrl-C)\n", fleet->url().c_str());
+    } else {
+      std::printf("[icars-coros] the dashboard stays at %s for %g s (Ctrl-C ends it sooner)\n", fleet->url().c_str(),
+                  options.http_linger_s);
+    }
+    std::fflush(stdout);
+    const double until = wall_now() + options.http_linger_s;
+    while (g_interrupted.load() == 0 && (options.http_linger_s < 0 || wall_now() < until)) ::usleep(50'000);
+  }
   return code;
 }
 

@@ -71,6 +71,11 @@ struct ScenarioOptions {
   int neighbor_expiry_ms = 1000;     // no HELLO for this long: the agent is gone
   std::uint16_t broadcast_port = 0;  // 0: a free one
   bool verbose = false;              // echo every agent event
+  // The dashboard's fleet page (docs/dashboard.md) on this host:port, "" for none; TLS with a
+  // certificate and key (required off loopback); how long it stays after the summary (seconds,
+  // negative: until SIGINT or SIGTERM).
+  std::string http, http_tls_cert, http_tls_key;
+  double http_linger_s = 0;
 };
 
 // One agent process to start: its configuration and where it writes.

@@ -162,6 +162,11 @@ struct Dashboard::Impl {
       const auto a = find_asset("index.html");
       res.set_content(std::string(a->body), std::string(a->content_type));
     });
+    // The COROS fleet page (icars-coros run --http), on the same API.
+    s.Get("/fleet", [](const httplib::Request&, httplib::Response& res) {
+      const auto a = find_asset("fleet.html");
+      res.set_content(std::string(a->body), std::string(a->content_type));
+    });
     s.Get(R"(/static/([A-Za-z0-9_.-]+))", [](const httplib::Request& req, httplib::Response& res) {
       const auto a = find_asset(req.matches[1].str());
       if (!a) return refuse(res, 404, "no such file: " + req.matches[1].str());

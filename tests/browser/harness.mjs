@@ -110,13 +110,14 @@ class TestContext {
 
   log(message) { console.log(`[${this.name}] ${message}`); }
 
-  // Runs `icars ARGS...` from the source tree and waits for its dashboard line. Returns the
-  // process, the page's address (with the token for `run`) and the token.
+  // Runs `icars ARGS...` (or `icars-coros ARGS...`, given as --icars) from the source tree and
+  // waits for its dashboard line. Returns the process, the page's address (with the token for
+  // `run`; /fleet for icars-coros) and the token.
   async startIcars(args) {
     const icars = new Icars(path.resolve(this.args.icars), args, this.source);
     this.processes.push(icars);
     this.log(`icars ${args.join(" ")}`);
-    const m = await icars.waitForOutput(/\[icars\] (?:dashboard|replaying [^\n]*): (http:\/\/127\.0\.0\.1:(\d+)\/(?:\?token=(\w+))?)/,
+    const m = await icars.waitForOutput(/\[icars(?:-coros)?\] (?:dashboard|replaying [^\n]*): (http:\/\/127\.0\.0\.1:(\d+)\/(?:fleet)?(?:\?token=(\w+))?)/,
                                         "its dashboard address");
     icars.url = m[1];
     icars.port = Number(m[2]);
