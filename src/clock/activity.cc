@@ -32,10 +32,19 @@ void Activity::Link::sent(int from_side) {
   {
     std::lock_guard lock(mutex_);
     if (closed_ || !joined_[0] || !joined_[1]) return;
-    ++in_flight_[1 - from_side];
   }
-  // Before the message is queued, so before its receiver can handle it.
+  // Begun before it is counted in flight (and before the message is queued, so before its
+  // receiver can handle it): a close() on another thread ends what it finds in flight, and an
+  // end that came before its begin would be lost, leaving the activity busy for ever.
   activity->begin();
+  {
+    std::lock_guard lock(mutex_);
+    if (!closed_) {
+      ++in_flight_[1 - from_side];
+      return;
+    }
+  }
+  activity->end();  // closed meanwhile: never to be handled
 }
 
 void Activity::Link::handled(int at_side) {
