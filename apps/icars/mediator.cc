@@ -368,13 +368,7 @@ int run(const RunOptions& options) {
   std::unique_ptr<home::mqtt::HomeAssistantPublisher> home_assistant;
   if (options.home_assistant) {
     home::mqtt::HomeAssistantOptions ha;
-    ha.node_id = options.ha_node_id;
-    if (ha.node_id.empty()) {
-      ha.node_id = "icars_" + house.name;
-      for (char& ch : ha.node_id) {
-        if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-') ch = '_';
-      }
-    }
+    ha.node_id = options.ha_node_id.empty() ? home::mqtt::name_of("icars_" + house.name) : options.ha_node_id;
     ha.name = "ICARS " + house.name;
     for (const auto& d : house.devices) ha.devices.push_back({d.id, d.type, d.room, d.carrier});
     for (const auto& r : house.robots) ha.robots.push_back({r.id, r.start.x, r.start.y});

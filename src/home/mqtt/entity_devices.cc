@@ -32,6 +32,14 @@ namespace bm = icars::bridge::mqtt;
 namespace p = icars::planet;
 using nlohmann::json;
 
+std::string name_of(std::string_view text) {
+  std::string name(text);
+  for (char& c : name) {
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_' && c != '-') c = '_';
+  }
+  return name;
+}
+
 namespace {
 
 enum class Kind { light, on_off_switch, occupancy, motion, measurement, cover, fan, climate };
@@ -143,15 +151,6 @@ std::optional<Kind> kind_of(const bm::Entity& e, std::string& why) {
       "fan and climate have); not registered",
       c);
   return std::nullopt;
-}
-
-// A device id from a unique id: letters, digits, '_' and '-' kept, anything else '_'.
-std::string device_id_of(std::string_view unique_id) {
-  std::string id(unique_id);
-  for (char& c : id) {
-    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_' && c != '-') c = '_';
-  }
-  return id;
 }
 
 // "Living Room" → "living_room".
@@ -552,11 +551,11 @@ class MqttDevices::Core : public std::enable_shared_from_this<Core> {
     if (const auto place = options_.placements.find(e.unique_id);
         place != options_.placements.end()) {
       r.device_id =
-          place->second.device_id.empty() ? device_id_of(e.unique_id) : place->second.device_id;
+          place->second.device_id.empty() ? name_of(e.unique_id) : place->second.device_id;
       r.room = place->second.room.empty() ? room_of(e.area) : place->second.room;
       furniture = place->second.furniture;
     } else {
-      r.device_id = device_id_of(e.unique_id);
+      r.device_id = name_of(e.unique_id);
       r.room = room_of(e.area);
     }
     std::shared_ptr<device::Device> device;

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "icars/clock/time.h"
+#include "icars/home/mqtt/entity_devices.h"
 
 namespace icars::home::mqtt {
 
@@ -26,15 +27,6 @@ using nlohmann::json;
 namespace {
 
 constexpr std::size_t kMaxState = 255;  // Home Assistant keeps at most this much of a state
-
-// A key of a unique_id or a topic level: letters, digits, '_' and '-'; anything else '_'.
-std::string key_of(std::string_view text) {
-  std::string key(text);
-  for (char& c : key) {
-    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_' && c != '-') c = '_';
-  }
-  return key;
-}
 
 // "TimeToSleep" → "Time to sleep", "come_to_me" → "Come to me".
 std::string label_of(std::string_view event) {
@@ -307,7 +299,7 @@ struct HomeAssistantPublisher::State {
                    {{"state_topic", topic("policy/error")}, {"icon", "mdi:alert-circle-outline"}});
     for (const auto& r : options.robots) {
       const auto& robot = r.id;
-      const auto key = key_of(robot);
+      const auto key = name_of(robot);
       const auto state = topic("robot/" + key);
       publish_config("sensor", key + "_room", robot + " room",
                      {{"state_topic", state}, {"value_template", "{{ value_json.room }}"},
@@ -317,8 +309,8 @@ struct HomeAssistantPublisher::State {
                       {"icon", "mdi:robot-vacuum"}});
     }
     for (const auto& d : options.devices) {
-      const auto key = "device_" + key_of(d.id);
-      const auto state = topic("device/" + key_of(d.id));
+      const auto key = "device_" + name_of(d.id);
+      const auto state = topic("device/" + name_of(d.id));
       publish_config("sensor", key, d.id,
                      {{"state_topic", state}, {"value_template", "{{ value_json.state }}"},
                       {"json_attributes_topic", state}});
@@ -340,12 +332,12 @@ struct HomeAssistantPublisher::State {
     const auto events = server.policy_events();
     for (const auto& gone : buttons) {
       if (std::find(events.begin(), events.end(), gone) != events.end()) continue;
-      const auto t = fmt::format("{}/button/{}/event_{}/config", options.discovery_prefix, options.node_id, key_of(gone));
+      const auto t = fmt::format("{}/button/{}/event_{}/config", options.discovery_prefix, options.node_id, name_of(gone));
       send(t, "");
       configs.erase(t);
     }
     for (const auto& event : events) {
-      publish_config("button", "event_" + key_of(event), label_of(event),
+      publish_config("button", "event_" + name_of(event), label_of(event),
                      {{"command_topic", topic("event/" + event)}, {"icon", "mdi:gesture-tap-button"}});
     }
     buttons = events;
@@ -394,7 +386,7 @@ struct HomeAssistantPublisher::State {
         out.emplace_back(name, std::move(j));
       }
     }
-    for (const auto& [name, j] : out) publish_retained_state(topic("robot/" + key_of(name)), j.dump());
+    for (const auto& [name, j] : out) publish_retained_state(topic("robot/" + name_of(name)), j.dump());
   }
 
   void publish_device(const std::string& id) {
@@ -416,7 +408,7 @@ struct HomeAssistantPublisher::State {
       j["state"] = j.contains("last") ? j["last"] : json("idle");
     }
     j["state"] = clip(j["state"].get<std::string>());
-    publish_retained_state(topic("device/" + key_of(id)), j.dump());
+    publish_retained_state(topic("device/" + name_of(id)), j.dump());
   }
 };
 
@@ -424,7 +416,7 @@ HomeAssistantPublisher::HomeAssistantPublisher(server::MediatingServer& server, 
                                                HomeAssistantOptions options)
     : state_(std::make_shared<State>(server, std::move(options))) {
   auto& s = *state_;
-  if (s.options.node_id.empty() || key_of(s.options.node_id) != s.options.node_id) {
+  if (s.options.node_id.empty() || name_of(s.options.node_id) != s.options.node_id) {
     throw std::invalid_argument("Home Assistant node id '" + s.options.node_id +
                                 "' is not a name of letters, digits, '_' and '-'");
   }

@@ -46,6 +46,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "icars/bridge/mqtt/client.h"
@@ -57,6 +58,10 @@ class logger;
 }
 
 namespace icars::home::mqtt {
+
+// A name made of `text` for MQTT topic levels, unique ids and device ids: letters, digits, '_'
+// and '-' kept, anything else '_' ("0x00:17/light" → "0x00_17_light").
+std::string name_of(std::string_view text);
 
 // Where an entity stands in the house.
 struct Placement {
