@@ -22,6 +22,11 @@ packages=(
   libmosquitto-dev mosquitto mosquitto-clients
   # ROS 1 for the COROS interaction layer: roscpp, message types, gencpp, roscore
   libroscpp-dev libstd-msgs-dev libgeometry-msgs-dev libnav-msgs-dev python3-gencpp ros-core
+  # the voice path (docs/speech.md): espeak-ng synthesizes the simulated voices, PocketSphinx and its
+  # en-us model recognize them, FFTW and libsamplerate process the audio, ALSA reads a real
+  # microphone, sox makes and inspects test recordings
+  libespeak-ng-dev espeak-ng libpocketsphinx-dev libsphinxbase-dev pocketsphinx-en-us
+  libfftw3-dev libsamplerate0-dev libasound2-dev sox
   # the dashboard's browser tests (tests/browser): node runs them, puppeteer-core drives chromium
   nodejs chromium
 )

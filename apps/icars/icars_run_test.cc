@@ -87,7 +87,7 @@ void expect_the_paper_night(const Run& r) {
   const auto reached = find(t, rest, event("ReachedUser"));
   ASSERT_LT(reached, n) << "the robot did not reach the user";
   // "turn on the TV" → the TV is on, and the other commands of the evening are served.
-  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the TV"; });
+  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the tv"; });
   ASSERT_LT(heard, n);
   EXPECT_LT(find(t, heard, effect("tv", "power", "on")), n) << "the TV did not turn on";
   EXPECT_LT(find(t, heard, [](const json& j) { return str(j, "call").starts_with("robot1_wheels.wheels.turn_to("); }), n)
@@ -271,7 +271,7 @@ TEST(IcarsRun, ExternalDeviceManagerInItsOwnProcess) {
   ASSERT_LT(rest, n);
   const auto reached = find(t, rest, event("ReachedUser"));
   ASSERT_LT(reached, n);
-  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the TV"; });
+  const auto heard = find(t, reached, [](const json& j) { return str(j, "kind") == "speech" && str(j, "words") == "turn on the tv"; });
   ASSERT_LT(heard, n);
   const auto call = find(t, heard, [](const json& j) { return str(j, "kind") == "call" && str(j, "call") == "tv.tv_control.set_power(true)"; });
   ASSERT_LT(call, n);

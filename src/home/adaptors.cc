@@ -1,5 +1,7 @@
 #include "icars/home/adaptors.h"
 
+#include "icars/home/sound_sensor.h"
+
 namespace icars::home {
 
 service::AdaptorFactory adaptors() {

@@ -3,6 +3,7 @@
 // the network), and whatever it holds is released at exit by the behavior model.
 #include "icars/home/behaviors.h"
 
+#include "speech_listener.h"
 #include "voice_commands.h"
 
 #include <fmt/format.h>
@@ -10,6 +11,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <numbers>
 #include <set>
 
 namespace icars::home {
@@ -49,7 +51,8 @@ std::optional<int> number_in(const std::string& text) {
 class Sense final : public Behavior {
  public:
   explicit Sense(const Params& p)
-      : type_(p.string("service")), room_(p.string("room")), report_current_(p.boolean("report_current")) {}
+      : type_(p.string("service")), room_(p.string("room")), report_current_(p.boolean("report_current")),
+        phrases_(p.list("phrases")) {}
 
  protected:
   void entry() override {
@@ -89,8 +92,18 @@ class Sense final : public Behavior {
       return true;
     }
     if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return sense(m), true;
-    if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) return sense(sp), true;
+    if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) {
+      // What the policy's rules listen for is what the recognizer should hear.
+      if (!phrases_.empty()) {
+        sp->want_phrases(this, phrases_);
+        on_release([weak = std::weak_ptr<SpeechSensor>(sp), key = static_cast<const void*>(this)] {
+          if (auto s = weak.lock()) s->drop_phrases(key);
+        });
+      }
+      return sense(sp), true;
+    }
     if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return sense(so), true;
+    if (auto sl = std::dynamic_pointer_cast<SoundLocalizer>(sensor)) return sense(sl), true;
     if (auto n = std::dynamic_pointer_cast<NavigationService>(sensor)) return sense(n), true;
     if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return sense(u), true;
     if (auto ms = std::dynamic_pointer_cast<MeasurementService>(sensor)) return sense(ms), true;
@@ -117,6 +130,7 @@ class Sense final : public Behavior {
   std::string type_;
   std::string room_;
   bool report_current_;
+  std::vector<std::string> phrases_;
   std::set<std::string> bound_;
 };
 
@@ -356,14 +370,11 @@ class PatrolHome final : public Driving {
 
 // --- Voice control --------------------------------------------------------------------------------
 
-// Subscribes to every speech sensor; a subclass says what the words do.
-class VoiceControl : public Behavior {
+// Subscribes to every speech sensor, telling it the phrases a subclass acts on; a subclass
+// says what the words do.
+class VoiceControl : public SpeechListener {
  protected:
-  void listen_to_speech() {
-    const auto sensors = services().find(of_type("SpeechSensor").available());
-    if (sensors.empty()) throw BehaviorError("no available SpeechSensor service");
-    for (const auto& sensor : sensors) listen(std::static_pointer_cast<SpeechSensor>(sensor));
-  }
+  void listen_to_speech(std::vector<std::string> phrases) { listen_for_phrases(std::move(phrases)); }
   void handle_event(const Event& e) override {
     if (e.type() == "SpeechEvent") on_command(lower(e.get<std::string>("text")));
   }
@@ -374,6 +385,8 @@ class VoiceControl : public Behavior {
   }
 };
 
+constexpr int kSpokenChannels = 30;  // "channel 1" .. "channel 30"
+
 class VoiceTVControl final : public VoiceControl {
  public:
   explicit VoiceTVControl(const Params& p) : room_(p.string("room")), step_(static_cast<int>(p.integer("volume_step"))) {}
@@ -383,7 +396,10 @@ class VoiceTVControl final : public VoiceControl {
     auto query = of_type("TVControl");
     if (!room_.empty()) query.in_room(room_);
     tv_ = require<TVControlService>(query);
-    listen_to_speech();
+    std::vector<std::string> phrases = {"turn on the tv", "turn off the tv", "tv on", "tv off",
+                                        "volume up", "volume down", "tv volume up", "tv volume down"};
+    for (int n = 1; n <= kSpokenChannels; ++n) phrases.push_back(fmt::format("channel {}", n));
+    listen_to_speech(std::move(phrases));
   }
   void on_command(const std::string& text) override {
     if (!mentions(text, "tv") && !mentions(text, "channel") && !mentions(text, "volume")) return;
@@ -427,7 +443,8 @@ class VoiceAudioControl final : public VoiceControl {
  protected:
   void entry() override {
     speaker_ = require<SpeakerService>(of_type("AudioControl"));
-    listen_to_speech();
+    listen_to_speech({"play music", "play some music", "play a song", "stop", "stop the music", "stop music",
+                      "volume up", "volume down", "music volume up", "music volume down"});
   }
   void on_command(const std::string& text) override {
     auto& sp = *speaker_;
@@ -577,6 +594,28 @@ class SetLights final : public Behavior {
 
 }  // namespace
 
+// --- LookAtSound ----------------------------------------------------------------------------------
+
+void LookAtSound::entry() {
+  wheels_ = require<NavigationService>(of_type("Navigation"));
+  auto query = of_type("SoundLocalizer");
+  if (!wheels_->attributes().carrier.empty()) query.carried_by(wheels_->attributes().carrier);
+  listen(require<SoundLocalizer>(query));
+}
+
+void LookAtSound::handle_event(const Event& e) {
+  if (e.type() != "SoundDirection") return;
+  if (e.get<double>("level_db") < min_level_db_ || e.get<double>("confidence") < min_confidence_) return;
+  const double bearing = e.get<double>("bearing");
+  invoke(*wheels_, "position", [&](auto done) { wheels_->proxy().position_async(done); },
+         [this, bearing](std::exception_ptr error, home::Pose at = {}) {
+           if (error) return note("could not read where the robot faces: " + describe(error));
+           const double direction = std::remainder(at.theta + bearing, 2 * std::numbers::pi);
+           invoke(*wheels_, fmt::format("turn_to({:.3f})", direction),
+                  [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
+         });
+}
+
 void register_behaviors(BehaviorRegistry& registry) {
   using T = ParamType;
   registry.add<Sense>("Sense", "propagates the events of sensor services",
@@ -585,7 +624,9 @@ void register_behaviors(BehaviorRegistry& registry) {
                              "MeasurementSensor"),
                        param("room", T::string, "", "only sensors in this room").naming("room"),
                        param("report_current", T::boolean, "false",
-                             "occupancy sensors: also report the current state at entry")});
+                             "occupancy sensors: also report the current state at entry"),
+                       param("phrases", T::list, "",
+                             "speech sensors: the phrases the policy's rules act on, for the recognizer (default: free speech)")});
   registry.add<GoToUser>("GoToUser", "finds the user with the robot's camera and drives to them",
                          {param("user", T::string, "", "who to go to (default: whoever the camera sees first)").naming("user"),
                           param("search", T::list, "", "rooms or waypoints to search in order (default: every room)").naming("place"),
@@ -604,8 +645,9 @@ void register_behaviors(BehaviorRegistry& registry) {
   registry.add<VoiceAudioControl>("VoiceAudioControl", "controls the speaker by voice: play music, stop, volume up/down",
                                   {param("track", T::string, "relaxing music", "what 'play music' plays"),
                                    param("volume_step", T::integer, "5", "volume change per command")});
-  registry.add<LookAtSound>("LookAtSound", "turns the robot towards sounds",
-                            {param("min_level_db", T::number, "45", "ignore quieter sounds")});
+  registry.add<LookAtSound>("LookAtSound", "turns the robot towards sounds, located by its microphone array",
+                            {param("min_level_db", T::number, "45", "ignore quieter sounds"),
+                             param("min_confidence", T::number, "0.03", "ignore sounds located less surely (0..1; a voice in a room is 0.05-0.5, diffuse noise under 0.02)")});
   registry.add<MoodControl>("MoodControl", "lights off or dimmed, calm music for a while",
                             {param("rooms", T::list, "", "lights of these rooms (default: all)").naming("room"),
                              param("intensity", T::integer, "0", "0: off, else dim to this percent"),
@@ -622,7 +664,7 @@ void register_behaviors(BehaviorRegistry& registry) {
 
   // What each propagates (policy checks follow the events up a task's tree with these).
   registry.declare_events("Sense", {event_spec<OccupancyEvent>(), event_spec<MotionEvent>(), event_spec<SpeechEvent>(),
-                                    event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>(),
+                                    event_spec<UnrecognizedSpeech>(), event_spec<SoundDirection>(), event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>(),
                                     event_spec<MeasurementEvent>()});
   registry.declare_events("GoToUser", {{"ReachedUser", {"user", "x", "y"}}});
   registry.declare_events("PatrolHome", {{"WaypointReached", {"waypoint", "index"}}, {"MotionDetected", {"room", "device"}}});

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <set>
 #include <cctype>
 #include <map>
 
@@ -211,6 +212,55 @@ std::optional<CommandTable::Match> CommandTable::match(std::string_view utteranc
 std::vector<std::string_view> services_of_action(std::string_view action) {
   const auto it = actions().find(action);
   return it == actions().end() ? std::vector<std::string_view>{} : it->second;
+}
+
+std::vector<std::string> CommandTable::phrases(int max_number) const {
+  std::set<std::string> all;
+  for (const auto& e : entries_) {
+    std::vector<std::string> expanded{""};
+    bool speakable = true;
+    const auto append = [&](const std::vector<std::string>& choices) {
+      std::vector<std::string> next;
+      for (const auto& head : expanded) {
+        for (const auto& c : choices) next.push_back(head.empty() ? c : head + " " + c);
+      }
+      expanded = std::move(next);
+    };
+    const std::string_view pattern = e.pattern;
+    std::size_t i = 0;
+    while (i < pattern.size() && speakable) {
+      const char c = pattern[i];
+      if (std::isspace(static_cast<unsigned char>(c)) != 0) {
+        ++i;
+      } else if (c == '(') {
+        const auto close = pattern.find(')', i);
+        std::vector<std::string> choices;
+        std::size_t start = i + 1;
+        for (std::size_t j = start; j <= close; ++j) {
+          if (j == close || pattern[j] == '|') {
+            choices.push_back(lower(trim(pattern.substr(start, j - start))));
+            start = j + 1;
+          }
+        }
+        append(choices);
+        i = close + 1;
+      } else if (c == '{') {
+        const auto close = pattern.find('}', i);
+        if (pattern.substr(i + 1, close - i - 1) != "n") speakable = false;  // {w}: any word
+        std::vector<std::string> numbers;
+        for (int n = 0; n <= max_number; ++n) numbers.push_back(std::to_string(n));
+        append(numbers);
+        i = close + 1;
+      } else {
+        std::size_t end = i;
+        while (end < pattern.size() && is_word_char(pattern[end])) ++end;
+        append({lower(pattern.substr(i, end - i))});
+        i = end;
+      }
+    }
+    if (speakable) all.insert(expanded.begin(), expanded.end());
+  }
+  return {all.begin(), all.end()};
 }
 
 }  // namespace icars::home

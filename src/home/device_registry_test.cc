@@ -5,7 +5,9 @@
 // connection: unavailable when it drops, back (same objects) when it returns.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <future>
 #include <mutex>
 #include <string>
@@ -14,7 +16,9 @@
 #include "child_process.h"
 #include "scoped_subscription.h"
 #include "icars/device/device_manager.h"
+#include "icars/audio/pcm.h"
 #include "icars/home/adaptors.h"
+#include "icars/home/microphone.h"
 #include "icars/home/services.h"
 #include "icars/planet/publisher.h"
 #include "icars/service/device_registry.h"
@@ -51,38 +55,59 @@ class FakeLight final : public home::LightServant {
   home::LightState state_;
 };
 
-// A microphone whose "audio" is the spoken text itself.
+// What the fake microphone can "say": each sentence is a burst of noise of its own length
+// (300 ms for the first, 200 ms more for each next), which the fake recognizer measures.
+const std::vector<std::string> kSentences = {"turn on the TV", "channel 5", "volume up", "play music", "stop"};
+
+// A microphone whose capture is bursts of loud noise among quiet noise, a burst per sentence.
 class FakeMicrophone final : public home::MicrophoneServant {
  public:
-  void subscribe(home::SoundListenerPrx listener, const p::Current&) override { sounds_.subscribe(listener); }
-  void unsubscribe(home::SoundListenerPrx listener, const p::Current&) override {
-    sounds_.unsubscribe(listener);
+  explicit FakeMicrophone(p::Communicator& communicator) : captures_(communicator) {}
+  home::MicrophoneInfo info(const p::Current&) override {
+    return microphone_info({16000, 1}, {{0, 0}}, 30.0, "fake");
   }
-  p::StreamRef record(std::int32_t, const p::Current&) override {
-    throw p::Error(p::ErrorKind::unimplemented, "no recording in the fake microphone");
+  p::StreamRef capture(std::int64_t since, const p::Current&) override {
+    return captures_.open(static_cast<std::uint64_t>(since));
   }
   void hear(const std::string& text) {
-    home::SoundEvent e;
-    e.device = "mic";
-    e.direction = 1.5;
-    e.level_db = 60;
-    e.room = "living_room";
-    e.audio.bytes.resize(text.size());
-    std::memcpy(e.audio.bytes.data(), text.data(), text.size());
-    sounds_.publish(e);
+    const auto index = static_cast<std::size_t>(std::find(kSentences.begin(), kSentences.end(), text) - kSentences.begin());
+    ASSERT_LT(index, kSentences.size()) << text;
+    audio::AudioBlock block;
+    block.format = {16000, 1};
+    block.start = position_;
+    const std::size_t quiet = 16 * 300, loud = 16 * (300 + 200 * index), after = 16 * 700;
+    for (std::size_t i = 0; i < quiet + loud + after; ++i) {
+      noise_ = noise_ * 1664525u + 1013904223u;
+      const int amplitude = i >= quiet && i < quiet + loud ? 6000 : 20;
+      block.samples.push_back(static_cast<std::int16_t>(static_cast<int>(noise_ >> 20) % amplitude));
+    }
+    position_ += block.frames();
+    captures_.push(block);
   }
-  std::size_t subscribers() const { return sounds_.size(); }
+  std::size_t subscribers() const { return captures_.readers(); }
 
  private:
-  p::Publisher<home::SoundEvent> sounds_{home::SoundListener::on_sound};
+  CaptureStreams captures_;
+  std::uint64_t position_ = 16000;
+  std::uint32_t noise_ = 1;
 };
 
+// Tells the sentence from the length of the loud part.
 class FakeRecognizer final : public home::SpeechRecognizerServant {
  public:
-  home::Recognition recognize(const p::Binary& audio, const p::Current&) override {
-    std::string text(reinterpret_cast<const char*>(audio.bytes.data()), audio.bytes.size());
-    if (text.empty()) throw home::NotRecognized("silence");
-    return home::Recognition{text, 0.9};
+  home::Recognition recognize(const p::Binary& audio, std::int32_t, std::int32_t,
+                              const std::vector<std::string>&, const p::Current&) override {
+    const auto samples = audio::pcm_samples(audio.bytes);
+    std::size_t loud = 0;
+    for (std::size_t f = 0; f + 320 <= samples.size(); f += 320) {
+      double energy = 0;
+      for (std::size_t i = f; i < f + 320; ++i) energy += double(samples[i]) * samples[i];
+      if (energy / 320 > 1e5) ++loud;
+    }
+    const double ms = static_cast<double>(loud) * 20;
+    const auto index = static_cast<std::size_t>(std::max(0L, std::lround((ms - 300) / 200.0)));
+    if (loud == 0 || index >= kSentences.size()) throw home::NotRecognized("no sentence", "no sentence");
+    return home::Recognition{kSentences[index], 0.9, kSentences[index], 1.0};
   }
 };
 
@@ -90,7 +115,7 @@ class FakeRecognizer final : public home::SpeechRecognizerServant {
 struct DeviceSide {
   p::Communicator communicator;
   device::DeviceManager manager{communicator};
-  std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>();
+  std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>(communicator);
 
   explicit DeviceSide(std::uint16_t server_port) {
     auto tv = std::make_shared<device::Device>("tv", "TV", "living_room");
@@ -126,9 +151,9 @@ TEST_F(SF, RegisteredDevicesBecomeServicesDiscoverableByTypeAndAttributes) {
   EXPECT_TRUE(container_.find(ServiceQuery::of_type("LightControl").in_room("living_room")).empty());
   EXPECT_EQ(container_.find(ServiceQuery().in_room("living_room")).size(), 1u);
   auto carried = container_.find(ServiceQuery().carried_by("robot1"));
-  ASSERT_EQ(carried.size(), 2u);  // the microphone's SoundSensor and the SpeechSensor on it
-  // 4 adaptors (one per capability) + 1 SpeechSensor composite.
-  EXPECT_EQ(container_.all().size(), 5u);
+  ASSERT_EQ(carried.size(), 3u);  // the microphone's SoundSensor, and the SpeechSensor and SoundLocalizer on it
+  // 4 adaptors (one per capability) + the SpeechSensor and SoundLocalizer composites.
+  EXPECT_EQ(container_.all().size(), 6u);
 
   auto tv = container_.find_first<TVControlService>(ServiceQuery::of_type("TVControl").available());
   ASSERT_TRUE(tv);
@@ -153,8 +178,8 @@ TEST_F(SF, SpeechSensorTurnsSoundIntoRecognizedSpeech) {
   auto future = heard.get_future();
   ASSERT_EQ(future.wait_for(20s), std::future_status::ready);
   const SpeechEvent e = future.get();
-  EXPECT_EQ(e.room, "living_room");
-  EXPECT_DOUBLE_EQ(e.direction, 1.5);
+  EXPECT_EQ(e.device, "robot1_mic");
+  EXPECT_TRUE(std::isnan(e.direction)) << "one microphone cannot tell a direction";
   EXPECT_DOUBLE_EQ(e.confidence, 0.9);
 }
 
@@ -175,7 +200,7 @@ TEST_F(SF, SpeechHeardWhileTheRecognizerIsAwayIsRecognizedInOrderWhenItIsBack) {
   struct MicSide {
     p::Communicator communicator;
     device::DeviceManager manager{communicator};
-    std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>();
+    std::shared_ptr<FakeMicrophone> mic = std::make_shared<FakeMicrophone>(communicator);
     explicit MicSide(std::uint16_t port) {
       auto robot_mic = std::make_shared<device::Device>("robot1_mic", "Microphone", "", "robot1");
       robot_mic->add("sound_sensor", mic);
@@ -209,7 +234,10 @@ TEST_F(SF, SpeechHeardWhileTheRecognizerIsAwayIsRecognizedInOrderWhenItIsBack) {
   engine.reset();  // the recognizer goes away
   ASSERT_TRUE(planet_test::wait_until([&] { return !speech->available(); }));
   for (const char* text : {"channel 5", "volume up", "play music"}) microphone.mic->hear(text);
-  ASSERT_TRUE(planet_test::wait_until([&] { return speech->waiting() == 3; }));
+  auto sound = container_.find_first<SoundSensor>(ServiceQuery::of_type("SoundSensor"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return speech->waiting() == 3; }))
+      << speech->waiting() << " waiting, " << sound->stats().sounds << " sounds, " << speech->rejected() << " rejected, "
+      << sound->stats().frames << " frames";
   EXPECT_EQ(so_far().size(), 1u);
 
   engine = std::make_unique<EngineSide>(port_);  // and comes back
@@ -244,7 +272,7 @@ TEST_F(SF, ServicesFollowTheirDevicesConnection) {
   ASSERT_TRUE(devices->manager.wait_registered(1, 20s));
   ASSERT_TRUE(planet_test::wait_until([&] { return tv->available() && speech->available(); }));
   EXPECT_EQ(came_back.load(), 1);
-  EXPECT_EQ(container_.all().size(), 5u) << "the same services were rebound, none added";
+  EXPECT_EQ(container_.all().size(), 6u) << "the same services were rebound, none added";
   tv->proxy().set_channel(7);
   ASSERT_TRUE(planet_test::wait_until([&] { return devices->mic->subscribers() == 1; }));
   devices->mic->hear("volume up");
@@ -257,7 +285,7 @@ TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
   const auto port = server->listen("127.0.0.1", 0);
   DeviceSide devices(port);
   ASSERT_TRUE(devices.manager.wait_registered(1, 20s)) << devices.manager.last_error();
-  EXPECT_EQ(sf->container().all().size(), 5u);
+  EXPECT_EQ(sf->container().all().size(), 6u);
 
   sf.reset();  // the server goes down...
   server.reset();
@@ -265,7 +293,7 @@ TEST(DeviceManagerTest, RegistersAgainWhenTheServerRestarts) {
   sf = std::make_unique<service::ServiceFramework>(*server, adaptors(), service::RegistryOptions{}, std::vector{composer()});
   ASSERT_EQ(server->listen("127.0.0.1", port), port);
   ASSERT_TRUE(devices.manager.wait_registered(2, 30s)) << devices.manager.last_error();
-  EXPECT_EQ(sf->container().all().size(), 5u);
+  EXPECT_EQ(sf->container().all().size(), 6u);
   auto tv = sf->container().find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
   ASSERT_TRUE(tv);
   tv->proxy().set_channel(9);

@@ -66,8 +66,8 @@ TEST_F(HouseServices, TheServerDiscoversTheHousesServicesByTypeAndRoom) {
   EXPECT_EQ(c.find(ServiceQuery::of_type("TVControl").in_room("living_room")).size(), 1u);
   EXPECT_EQ(c.find(ServiceQuery::of_type("OccupancySensor").in_room("bedroom")).size(), 1u);
   // The robot's wheels, microphone, speaker and camera, plus the adaptive services on them:
-  // SpeechSensor (microphone), CameraFactory and UserLocator (camera).
-  EXPECT_EQ(c.find(ServiceQuery().carried_by("robot1")).size(), 7u);
+  // SpeechSensor and SoundLocalizer (microphone), CameraFactory and UserLocator (camera).
+  EXPECT_EQ(c.find(ServiceQuery().carried_by("robot1")).size(), 8u);
 
   std::map<std::string, int> by_type;
   for (const auto& s : c.all()) ++by_type[s->type()];
@@ -87,18 +87,17 @@ TEST_F(HouseServices, ASimulatedUtteranceBecomesRecognizedSpeech) {
   auto speech = sf_.container().find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor"));
   ASSERT_TRUE(speech);
   ASSERT_TRUE(planet_test::wait_until([&] { return speech->available(); }));
+  // What a voice-control behavior would listen for.
+  speech->want_phrases(this, {"turn on the tv", "turn off the tv", "channel 5", "play music"});
   std::promise<SpeechEvent> heard;
   std::atomic<bool> done{false};
   const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
-    if (e.text == "turn on the TV" && !done.exchange(true)) heard.set_value(e);
+    if (e.text == "turn on the tv" && !done.exchange(true)) heard.set_value(e);
   });
   auto sound = sf_.container().find_first<SoundSensor>(ServiceQuery::of_type("SoundSensor"));
-  ASSERT_TRUE(planet_test::wait_until([&] {
-    // The sensor adaptor's subscription reaches the microphone asynchronously; say it until
-    // the microphone's events arrive.
-    simulation()->proxy().say("user1", "turn on the TV");
-    return sound->events_received() > 0;
-  }));
+  // Once the sensor listens to the microphone's capture, what the user says is heard.
+  ASSERT_TRUE(planet_test::wait_until([&] { return sound->stats().captures > 0; }, 60s));
+  simulation()->proxy().say("user1", "turn on the TV");
   auto future = heard.get_future();
   ASSERT_EQ(future.wait_for(20s), std::future_status::ready);
   const SpeechEvent e = future.get();
@@ -182,11 +181,13 @@ TEST_F(HouseServices, KilledAndRestartedDeviceManagerBringsItsServicesBack) {
   auto speech = sf_.container().find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor"));
   auto tv = sf_.container().find_first<TVControlService>(ServiceQuery::of_type("TVControl"));
   ASSERT_TRUE(speech && tv);
+  speech->want_phrases(this, {"channel 5", "volume up", "stop"});
   std::atomic<int> heard{0};
   const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     if (e.text == "channel 5") ++heard;
   });
   const auto services = sf_.container().all().size();
+  const auto captures = sf_.container().find_first<SoundSensor>(ServiceQuery::of_type("SoundSensor"))->stats().captures;
 
   manager_->signal(SIGKILL);
   manager_->wait();
@@ -197,10 +198,11 @@ TEST_F(HouseServices, KilledAndRestartedDeviceManagerBringsItsServicesBack) {
   ASSERT_TRUE(planet_test::wait_until([&] { return tv->available() && speech->available(); }, 60s));
   EXPECT_EQ(sf_.container().all().size(), services) << "the same services came back";
   EXPECT_EQ(tv->proxy().state().channel, 1) << "a fresh TV";
-  ASSERT_TRUE(planet_test::wait_until([&] {
-    simulation()->proxy().say("user1", "channel 5");
-    return heard.load() > 0;
-  }));
+  // The sound sensor opened the new microphone's capture: what the user says is heard again.
+  auto sound = sf_.container().find_first<SoundSensor>(ServiceQuery::of_type("SoundSensor"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return sound->stats().captures >= captures + 1; }, 60s));
+  simulation()->proxy().say("user1", "channel 5");
+  ASSERT_TRUE(planet_test::wait_until([&] { return heard.load() > 0; }, 60s));
 }
 
 }  // namespace

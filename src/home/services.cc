@@ -1,5 +1,10 @@
 #include "icars/home/services.h"
 
+#include <asio/post.hpp>
+
+#include <limits>
+#include <set>
+
 namespace icars::home {
 
 // --- SpeechSensor ----------------------------------------------------------------------------
@@ -31,10 +36,14 @@ void SpeechSensor::on_sound(const home::SoundEvent& e) {
   retry_waiting();  // what waited goes first
   Heard h;
   h.audio = e.audio;
-  h.speech.direction = e.direction;
+  h.sample_rate = e.sample_rate;
+  h.channels = e.channels;
+  // Where it came from is the SoundLocalizer's to say (SoundDirection), off the io thread.
+  h.speech.direction = std::numeric_limits<double>::quiet_NaN();
   h.speech.room = e.room;
   h.speech.device = e.device;
   h.speech.time_ms = e.time_ms;
+  h.speech.end_ms = e.end_ms;
   h.at = std::chrono::steady_clock::now();
   {
     std::lock_guard lock(mutex_);
@@ -43,35 +52,66 @@ void SpeechSensor::on_sound(const home::SoundEvent& e) {
   recognize(std::move(h));
 }
 
+void SpeechSensor::want_phrases(const void* listener, std::vector<std::string> phrases) {
+  std::lock_guard lock(mutex_);
+  wanted_[listener] = std::move(phrases);
+}
+
+void SpeechSensor::drop_phrases(const void* listener) {
+  std::lock_guard lock(mutex_);
+  wanted_.erase(listener);
+}
+
+std::vector<std::string> SpeechSensor::phrases() const {
+  std::lock_guard lock(mutex_);
+  std::set<std::string> all;
+  for (const auto& [listener, phrases] : wanted_) all.insert(phrases.begin(), phrases.end());
+  return {all.begin(), all.end()};
+}
+
 void SpeechSensor::recognize(Heard h) {
   auto audio = h.audio;
+  const int rate = h.sample_rate;
+  const int channels = h.channels;
   recognizer_->proxy().recognize_async(
-      audio, [weak = weak_from_this(), h = std::move(h)](std::exception_ptr error,
-                                                         home::Recognition result) mutable {
+      audio, rate, channels, phrases(),
+      [weak = weak_from_this(), h = std::move(h)](std::exception_ptr error, home::Recognition result) mutable {
         auto self = std::static_pointer_cast<SpeechSensor>(weak.lock());
         if (!self) return;
+        const auto latency = std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - h.at);
         if (error) {
           // Not speech (NotRecognized) is an answer; a recognizer out of reach is not.
           bool unreachable = false;
+          UnrecognizedSpeech unrecognized{"", "", h.speech.room, h.speech.device, h.speech.time_ms};
           try {
             std::rethrow_exception(error);
+          } catch (const home::NotRecognized& e) {
+            unrecognized.reason = e.reason();
+          } catch (const home::BadAudio& e) {
+            unrecognized.reason = "bad audio: " + e.reason();
           } catch (const planet::Error& e) {
             unreachable = e.kind() == planet::ErrorKind::disconnected ||
                           e.kind() == planet::ErrorKind::timeout ||
                           e.kind() == planet::ErrorKind::overloaded;
-          } catch (...) {
+            unrecognized.reason = e.what();
+          } catch (const std::exception& e) {
+            unrecognized.reason = e.what();
           }
           const auto seq = h.seq;
-          if (!unreachable || !self->wait_for_recognizer(std::move(h))) {
+          if (!unreachable) {
             ++self->rejected_;
-            self->settle(seq, std::nullopt);
+            self->settle(seq, Outcome{std::nullopt, std::move(unrecognized)});
+          } else if (!self->wait_for_recognizer(std::move(h))) {
+            ++self->rejected_;
+            self->settle(seq, Outcome{});
           }
           return;
         }
         h.speech.text = std::move(result.text);
         h.speech.confidence = result.confidence;
+        h.speech.latency_ms = latency.count();
         ++self->recognized_;
-        self->settle(h.seq, std::move(h.speech));
+        self->settle(h.seq, Outcome{std::move(h.speech), std::nullopt});
         self->retry_waiting();  // it is reachable: what waited for it need not wait longer
       });
 }
@@ -105,7 +145,7 @@ void SpeechSensor::retry_waiting() {
   for (auto& h : again) {
     if (std::chrono::steady_clock::now() - h.at > kMaxWait) {
       ++rejected_;
-      settle(h.seq, std::nullopt);
+      settle(h.seq, Outcome{});
       continue;
     }
     ++retried_;
@@ -113,18 +153,79 @@ void SpeechSensor::retry_waiting() {
   }
 }
 
-void SpeechSensor::settle(std::uint64_t seq, std::optional<SpeechEvent> speech) {
+void SpeechSensor::settle(std::uint64_t seq, Outcome outcome) {
   std::lock_guard deliver(deliver_mutex_);
-  std::vector<SpeechEvent> ready;
+  std::vector<Outcome> ready;
   {
     std::lock_guard lock(mutex_);
-    settled_.emplace(seq, std::move(speech));
+    settled_.emplace(seq, std::move(outcome));
     for (auto it = settled_.begin(); it != settled_.end() && it->first == deliver_seq_;
          it = settled_.erase(it), ++deliver_seq_) {
-      if (it->second) ready.push_back(std::move(*it->second));
+      ready.push_back(std::move(it->second));
     }
   }
-  for (const auto& e : ready) events_.notify(e);
+  for (const auto& o : ready) {
+    if (o.speech) events_.notify(*o.speech);
+    if (o.unrecognized) unrecognized_.notify(*o.unrecognized);
+  }
+}
+
+std::uint64_t SpeechSensor::add_subscription(std::function<void(const SpeechEvent&)> speech,
+                                             std::function<void(const UnrecognizedSpeech&)> unrecognized) {
+  const auto a = events_.add(std::move(speech));
+  const auto b = unrecognized ? unrecognized_.add(std::move(unrecognized)) : ~std::uint64_t{0};
+  std::lock_guard lock(mutex_);
+  const auto id = next_subscription_++;
+  subscriptions_[id] = {a, b};
+  return id;
+}
+
+void SpeechSensor::unsubscribe(std::uint64_t id) {
+  std::pair<std::uint64_t, std::uint64_t> ids;
+  {
+    std::lock_guard lock(mutex_);
+    auto it = subscriptions_.find(id);
+    if (it == subscriptions_.end()) return;
+    ids = it->second;
+    subscriptions_.erase(it);
+  }
+  events_.remove(ids.first);
+  if (ids.second != ~std::uint64_t{0}) unrecognized_.remove(ids.second);
+}
+
+// --- SoundLocalizer --------------------------------------------------------------------------
+
+SoundLocalizer::SoundLocalizer(std::shared_ptr<SoundSensor> sound)
+    : service::Service(sound->attributes().device + ".sound_localizer", "SoundLocalizer", sound->attributes()),
+      sound_(std::move(sound)) {
+  subscription_ = sound_->subscribe([this](const SoundEvent& e) { on_sound(e); });
+  watch_ = sound_->watch([this](const bool& available) { set_available(available); });
+  set_available(sound_->available());
+}
+
+SoundLocalizer::~SoundLocalizer() {
+  sound_->unsubscribe(subscription_);
+  sound_->remove_watcher(watch_);
+  worker_.join();
+}
+
+void SoundLocalizer::on_sound(const SoundEvent& e) {
+  const auto info = sound_->info();
+  if (!info || e.channels < 2) {
+    ++unlocated_;
+    return;
+  }
+  // The correlations take a while for a long sound: on the localizer's own thread, in order.
+  asio::post(worker_, [this, e, info = *info, busy = sound_->hold_work()]() mutable {
+    const auto found = locate_sound(e, info);
+    if (!found || !found->valid) {
+      ++unlocated_;
+      return;
+    }
+    ++located_;
+    events_.notify(SoundDirection{e.device, found->bearing, found->confidence, e.level_db, e.room, e.time_ms});
+    busy.release();
+  });
 }
 
 // --- CameraFactory ---------------------------------------------------------------------------
@@ -229,6 +330,12 @@ CompositeFactory::~CompositeFactory() { container_.remove_watcher(watch_); }
 
 void CompositeFactory::compose() {
   std::lock_guard lock(mutex_);  // recursive: adding a composite notifies this watcher again
+  for (auto& s : container_.find(service::ServiceQuery::of_type("SoundSensor"))) {
+    auto sound = std::dynamic_pointer_cast<SoundSensor>(s);
+    if (sound && !container_.get(sound->attributes().device + ".sound_localizer")) {
+      container_.add(std::make_shared<SoundLocalizer>(sound));
+    }
+  }
   auto recognizer = container_.find_first<SpeechRecognizerService>(service::ServiceQuery::of_type("SpeechRecognizer"));
   if (recognizer) {
     for (auto& s : container_.find(service::ServiceQuery::of_type("SoundSensor"))) {

@@ -11,6 +11,7 @@
 #include "icars/home/adaptors.h"
 #include "icars/home/command_table.h"
 #include "icars/home/services.h"
+#include "speech_listener.h"
 
 namespace icars::home {
 
@@ -32,17 +33,13 @@ std::optional<int> integer(std::string_view v) {
   return n;
 }
 
-class VoiceCommands final : public Behavior {
+class VoiceCommands final : public SpeechListener {
  public:
   explicit VoiceCommands(const Params& p)
       : table_(CommandTable::parse(p.string("commands"))), step_(static_cast<int>(p.integer("step"))) {}
 
  protected:
-  void entry() override {
-    const auto sensors = services().find(of_type("SpeechSensor").available());
-    if (sensors.empty()) throw BehaviorError("no available SpeechSensor service");
-    for (const auto& sensor : sensors) listen(std::static_pointer_cast<SpeechSensor>(sensor));
-  }
+  void entry() override { listen_for_phrases(table_.phrases()); }
 
   void handle_event(const Event& e) override {
     if (e.type() != "SpeechEvent") return;

@@ -134,13 +134,26 @@ void ServiceRecorder::observe(const std::shared_ptr<service::Service>& service) 
   std::lock_guard lock(mutex_);
   if (!seen_.insert(service->id()).second) return;
   if (auto speech = std::dynamic_pointer_cast<home::SpeechSensor>(service)) {
-    const auto id = speech->subscribe([this](const home::SpeechEvent& e) {
-      ++heard_;
-      auto r = record(Time(e.time_ms), "speech", e.device,
-                      fmt::format("{} heard \"{}\" ({:.0f}% sure)", e.device, e.text, e.confidence * 100));
-      r.with("words", e.text).with("device", e.device).with("confidence", e.confidence);
-      trace_.record(std::move(r));
-    });
+    // Both what was recognized and what was heard but not taken for any phrase.
+    struct Recorder {
+      ServiceRecorder* self;
+      void operator()(const home::SpeechEvent& e) const {
+        ++self->heard_;
+        auto r = record(Time(e.time_ms), "speech", e.device,
+                        fmt::format("{} heard \"{}\" ({:.0f}% sure)", e.device, e.text, e.confidence * 100));
+        r.with("words", e.text).with("device", e.device).with("confidence", e.confidence).with("recognized", true);
+        r.with("latency_ms", e.latency_ms);
+        self->trace_.record(std::move(r));
+      }
+      void operator()(const home::UnrecognizedSpeech& e) const {
+        auto r = record(Time(e.time_ms), "speech", e.device,
+                        fmt::format("{} heard speech it did not recognize: {}", e.device, e.reason));
+        r.with("words", "").with("device", e.device).with("confidence", 0.0).with("recognized", false);
+        r.with("reason", e.reason);
+        self->trace_.record(std::move(r));
+      }
+    };
+    const auto id = speech->subscribe(Recorder{this});
     releases_.push_back([speech, id] { speech->unsubscribe(id); });
   }
   if (auto nav = std::dynamic_pointer_cast<home::NavigationService>(service); nav && positions_) {

@@ -422,7 +422,7 @@ void Parser::parse_robot(pugi::xml_node n, House& house) {
 
 void Parser::parse_user(pugi::xml_node n, House& house) {
   check_attributes(
-      n, {"id", "x", "y", "speed", "radius", "loudness", "jitter", "loudness_jitter", "repeat"});
+      n, {"id", "x", "y", "speed", "radius", "loudness", "jitter", "loudness_jitter", "repeat", "voice"});
   check_children(n, {"go_to", "sit", "lie", "stand", "say"});
   UserSpec u;
   u.id = name(n, "id");
@@ -431,6 +431,13 @@ void Parser::parse_user(pugi::xml_node n, House& house) {
   u.speed = positive(n, "speed", 1.0, "m/s");
   u.radius = positive(n, "radius", 0.2, "metres");
   u.loudness_db = number(n, "loudness", 60.0, "dB");
+  if (auto voice = n.attribute("voice")) {
+    u.voice = voice.value();
+    if (u.voice.empty() || u.voice.find_first_of(" \t\n") != std::string::npos) {
+      fail(line(n), fmt::format("voice=\"{}\" of {} is not a voice name, expected an espeak-ng voice such as en-us or en-us+f3",
+                                u.voice, describe(n)));
+    }
+  }
   u.time_jitter =
       std::chrono::milliseconds(std::llround(non_negative(n, "jitter", 0.0, "seconds") * 1000.0));
   u.loudness_jitter_db = non_negative(n, "loudness_jitter", 0.0, "dB");

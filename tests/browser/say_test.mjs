@@ -41,7 +41,8 @@ runTest("say", async (t) => {
       }
       return null;
     }, [kind, source, needle]);
-  const heardAt = await rowTime("speech", "robot1_mic", `heard "${SENTENCE}"`);
+  // Heard as the voice behaviors declare the phrase (VoiceTVControl: "turn on the tv").
+  const heardAt = await rowTime("speech", "robot1_mic", `heard "${SENTENCE.toLowerCase()}"`);
   const poweredOnAt = await rowTime("effect", "tv", "tv: power on");
   t.log(`heard at ${heardAt}, the TV on at ${poweredOnAt}`);
   const heard = parseClock(heardAt);

@@ -190,6 +190,9 @@ class Behavior : public Owner {
   auto guard(F fn) {
     return [rt = &runtime(), activation = std::weak_ptr<const char>(activation_),
             fn = std::make_shared<F>(std::move(fn))](auto&&... args) {
+      // A completion that arrives after the activation ended (its policy stopped, its runtime
+      // perhaps gone with it) has nothing to run on: it is dropped before touching the runtime.
+      if (activation.expired()) return;
       rt->post([activation, fn, ... a = std::decay_t<decltype(args)>(std::forward<decltype(args)>(args))]() mutable {
         if (activation.lock()) (*fn)(std::move(a)...);
       });

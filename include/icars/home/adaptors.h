@@ -82,12 +82,6 @@ class SimulationService final : public service::AdaptorOf<home::SimulationPrx> {
       : AdaptorOf("Simulation", d, c) {}
 };
 
-class SoundSensor final : public service::SensorAdaptor<home::MicrophonePrx, home::SoundListener, home::SoundEvent,
-                                                home::SoundListener::on_sound> {
- public:
-  SoundSensor(const df::DeviceInfo& d, const df::CapabilityInfo& c) : SensorAdaptor("SoundSensor", d, c) {}
-};
-
 // The robot's wheels as a navigation service: go_to/go_to_waypoint/stop and position events.
 class NavigationService final : public service::SensorAdaptor<home::WheelsPrx, home::PositionListener, home::PositionEvent,
                                                       home::PositionListener::on_position> {

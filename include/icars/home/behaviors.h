@@ -28,27 +28,21 @@ void register_behaviors(behavior::BehaviorRegistry& registry);
 // A registry with the generic behaviors (Wait, Emit) and the house behaviors: what `icars` runs.
 behavior::BehaviorRegistry behavior_registry();
 
-// Fig. 11b: binds the robot's wheels and sound sensor at entry; on every sound turns the
-// robot towards where it came from.
+// Fig. 11b: binds the robot's wheels and the sound localizer of its microphone array at entry;
+// on every sound loud and clear enough turns the robot towards where the localizer estimated it
+// came from (the robot's heading now plus the sound's bearing from the array's front).
 class LookAtSound : public behavior::Behavior {
  public:
-  explicit LookAtSound(const behavior::Params& p) : min_level_db_(p.number("min_level_db")) {}
+  explicit LookAtSound(const behavior::Params& p)
+      : min_level_db_(p.number("min_level_db")), min_confidence_(p.number("min_confidence")) {}
 
  protected:
-  void entry() override {
-    wheels_ = require<NavigationService>(of_type("Navigation"));
-    listen(require<SoundSensor>(of_type("SoundSensor")));
-  }
-  void handle_event(const behavior::Event& e) override {
-    if (e.type() == "SoundEvent" && e.get<double>("level_db") >= min_level_db_) {
-      const double direction = e.get<double>("direction");
-      invoke(*wheels_, "turn_to(" + std::to_string(direction) + ")",
-             [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
-    }
-  }
+  void entry() override;
+  void handle_event(const behavior::Event& e) override;
 
  private:
   double min_level_db_;
+  double min_confidence_;
   std::shared_ptr<NavigationService> wheels_;
 };
 

@@ -62,6 +62,11 @@ class CommandTable {
 
   const std::vector<CommandEntry>& entries() const { return entries_; }
 
+  // Every phrase the table acts on, for a speech recognizer's vocabulary: each pattern with its
+  // alternatives expanded and {n} as 0..max_number. An entry with a {w} (any word) cannot be
+  // listed and is left out: it matches only what a recognizer of free speech produced.
+  std::vector<std::string> phrases(int max_number = 100) const;
+
  private:
   std::vector<CommandEntry> entries_;
 };

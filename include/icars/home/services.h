@@ -2,8 +2,10 @@
 // from or augmenting the home's adaptor services, built by a service::Composer that watches the
 // service container (home::composer() for a ServerOptions or a ServiceFramework).
 //
-// - SpeechSensor = SoundSensor + SpeechRecognizer: every sound event's audio is recognized and
-//   published as a SpeechEvent carrying the text.
+// - SpeechSensor = SoundSensor + SpeechRecognizer: every sound's audio is recognized against the
+//   phrases its listeners act on and published as a SpeechEvent carrying the phrase, or as an
+//   UnrecognizedSpeech.
+// - SoundLocalizer: the direction each sound of a microphone array came from.
 // - CameraFactory: makes a camera sharable: one capture serves every user that asks within
 //   `max_age`, so several behaviors looking through one robot camera cost one remote call.
 // - UserLocator = CameraFactory + FaceRecognizer: finds the people the camera sees and
@@ -13,6 +15,7 @@
 // soon as their parts are in the container and keep them across the parts' reconnections.
 #pragma once
 
+#include <asio/thread_pool.hpp>
 #include <chrono>
 #include <cstdint>
 #include <deque>
@@ -21,9 +24,11 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "icars/home/adaptors.h"
+#include "icars/home/sound_sensor.h"
 #include "icars/service/service_container.h"
 #include "icars/service/service_framework.h"
 
@@ -37,8 +42,25 @@ class SpeechSensor final : public service::Service {
   SpeechSensor(std::shared_ptr<SoundSensor> sound, std::shared_ptr<SpeechRecognizerService> recognizer);
   ~SpeechSensor() override;
 
-  std::uint64_t subscribe(std::function<void(const SpeechEvent&)> fn) { return events_.add(std::move(fn)); }
-  void unsubscribe(std::uint64_t id) { events_.remove(id); }
+  // `fn` runs for every SpeechEvent; a callable that also takes an UnrecognizedSpeech (a
+  // behavior's generic listener) gets those too. Returns an id for unsubscribe.
+  template <class F>
+  std::uint64_t subscribe(F fn) {
+    if constexpr (std::is_invocable_v<F&, const UnrecognizedSpeech&>) {
+      return add_subscription(fn, fn);
+    } else {
+      return add_subscription(std::move(fn), nullptr);
+    }
+  }
+  void unsubscribe(std::uint64_t id);
+
+  // The phrases `listener` acts on (a voice-control behavior, while it runs): the recognizer
+  // decodes against the union of every listener's phrases, so it hears what the running policy
+  // can act on and reports anything else as UnrecognizedSpeech. With none, free speech.
+  void want_phrases(const void* listener, std::vector<std::string> phrases);
+  void drop_phrases(const void* listener);
+  std::vector<std::string> phrases() const;  // the union, sorted
+
   std::uint64_t recognized() const { return recognized_.load(); }
   std::uint64_t rejected() const { return rejected_.load(); }
   std::uint64_t retried() const { return retried_.load(); }
@@ -55,17 +77,26 @@ class SpeechSensor final : public service::Service {
   struct Heard {
     std::uint64_t seq = 0;  // in the order the sounds came
     planet::Binary audio;
+    int sample_rate = 0;
+    int channels = 0;
     SpeechEvent speech;
     std::chrono::steady_clock::time_point at;
     bool retried_at_once = false;
   };
+  struct Outcome {
+    std::optional<SpeechEvent> speech;
+    std::optional<UnrecognizedSpeech> unrecognized;
+  };
+  std::uint64_t add_subscription(std::function<void(const SpeechEvent&)> speech,
+                                 std::function<void(const UnrecognizedSpeech&)> unrecognized);
   void on_sound(const home::SoundEvent& e);
   void recognize(Heard h);
   // Keeps `h` for the recognizer's return; false when it is too old or too many wait.
   bool wait_for_recognizer(Heard h);
   void retry_waiting();
-  // Records the outcome of sound `seq` (nullopt: rejected) and delivers what is in order.
-  void settle(std::uint64_t seq, std::optional<SpeechEvent> speech);
+  // Records the outcome of sound `seq` (neither: rejected, nothing to tell) and delivers what
+  // is in order.
+  void settle(std::uint64_t seq, Outcome outcome);
   void update_availability();
 
   std::shared_ptr<SoundSensor> sound_;
@@ -74,15 +105,45 @@ class SpeechSensor final : public service::Service {
   std::uint64_t sound_watch_ = 0;
   std::uint64_t recognizer_watch_ = 0;
   service::Listeners<SpeechEvent> events_;
+  service::Listeners<UnrecognizedSpeech> unrecognized_;
   std::atomic<std::uint64_t> recognized_{0};
   std::atomic<std::uint64_t> rejected_{0};
   std::atomic<std::uint64_t> retried_{0};
   mutable std::mutex mutex_;
   std::uint64_t next_seq_ = 0;     // the next sound's
   std::uint64_t deliver_seq_ = 0;  // the next to deliver
-  std::map<std::uint64_t, std::optional<SpeechEvent>> settled_;  // out of order so far
+  std::map<std::uint64_t, Outcome> settled_;  // out of order so far
   std::deque<Heard> waiting_;
+  std::map<const void*, std::vector<std::string>> wanted_;
+  std::uint64_t next_subscription_ = 0;
+  std::map<std::uint64_t, std::pair<std::uint64_t, std::uint64_t>> subscriptions_;
   std::mutex deliver_mutex_;  // one deliverer at a time, so listeners see the order
+};
+
+// Where sounds come from: for a SoundSensor on a microphone array, the direction of each sound
+// estimated from the delays between its channels (GCC-PHAT, include/icars/audio/direction.h),
+// published as a SoundDirection (bearing from the array's front) from the localizer's own
+// thread, in the order the sounds came. Sounds of a one-channel microphone cannot be located
+// and are only counted.
+class SoundLocalizer final : public service::Service {
+ public:
+  explicit SoundLocalizer(std::shared_ptr<SoundSensor> sound);
+  ~SoundLocalizer() override;
+
+  std::uint64_t subscribe(std::function<void(const SoundDirection&)> fn) { return events_.add(std::move(fn)); }
+  void unsubscribe(std::uint64_t id) { events_.remove(id); }
+  std::uint64_t located() const { return located_.load(); }
+  std::uint64_t unlocated() const { return unlocated_.load(); }
+
+ private:
+  void on_sound(const SoundEvent& e);
+  std::shared_ptr<SoundSensor> sound_;
+  std::uint64_t subscription_ = 0;
+  std::uint64_t watch_ = 0;
+  service::Listeners<SoundDirection> events_;
+  std::atomic<std::uint64_t> located_{0};
+  std::atomic<std::uint64_t> unlocated_{0};
+  asio::thread_pool worker_{1};  // where the correlations run; joined before the rest goes
 };
 
 // A shared camera: `capture` completes with the newest image no older than max_age, taking a

@@ -109,6 +109,7 @@ struct UserSpec {
   double speed = 1.0;         // m/s walking
   double radius = 0.2;        // m, for path planning
   double loudness_db = 60.0;  // speech level at 1 m
+  std::string voice = "en-us";  // the espeak-ng voice the simulated microphones hear it speak with
   Time time_jitter{0};     // each activity starts up to this much early or late
   double loudness_jitter_db = 0.0;
   bool daily = true;                    // the schedule repeats every day; false: day 0 only

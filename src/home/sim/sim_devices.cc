@@ -7,6 +7,7 @@
 #include <asio/use_awaitable.hpp>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <mutex>
 #include <numbers>
@@ -17,6 +18,11 @@
 #include "home.planet.h"
 #include "icars/planet/publisher.h"
 #include "icars/planet/stream.h"
+#include "icars/audio/acoustics.h"
+#include "icars/audio/audio_stream.h"
+#include "icars/audio/synthesizer.h"
+#include "icars/home/microphone.h"
+#include "icars/home/speech_recognizer.h"
 
 namespace icars::home {
 
@@ -24,9 +30,7 @@ namespace p = icars::planet;
 
 namespace {
 
-constexpr std::string_view kSpeechMagic = "SIMSPEECH1";
 constexpr double kHearingThresholdDb = 25.0;  // default: quieter sounds are not detected
-constexpr double kRecognitionThresholdDb = 35.0;  // quieter speech is not understood
 
 std::int64_t ms(Time t) { return static_cast<std::int64_t>(t.count()); }
 
@@ -192,65 +196,165 @@ class WorldListener {
   std::uint64_t id_ = 0;
 };
 
+// What a simulated microphone array is: where its microphones are and the room it hears.
+struct MicSetup {
+  double threshold_db = kHearingThresholdDb;
+  std::vector<audio::MicPosition> mics{{0, 0}};
+  audio::RoomSound room;
+};
+
+// A simulated microphone (or array): every utterance of the world is synthesized with the
+// speaker's voice (espeak-ng) and rendered as each of its microphones hears it (distance,
+// walls, the room's reverberation and noise; audio::render), then delivered on its captures in
+// frames as the clock passes their time, like a sound card. Stretches in which it hears nobody
+// are left out of the stream (the reader takes the gap for silence): a night of silence costs
+// nothing.
 class SimMicrophone final : public home::MicrophoneServant {
  public:
-  SimMicrophone(std::string id, SimContext context, double threshold_db)
-      : id_(std::move(id)), threshold_db_(threshold_db), world_(context.world),
-        communicator_(context.communicator), listener_(context.world) {
-    listener_.set(world_.on_utterance([this](const sim::Utterance& u) { hear(u); }));
+  SimMicrophone(std::string id, SimContext context, MicSetup setup)
+      : core_(std::make_shared<Core>(std::move(id), context, std::move(setup))), listener_(context.world) {
+    listener_.set(context.world.on_utterance([core = std::weak_ptr<Core>(core_)](const sim::Utterance& u) {
+      if (auto c = core.lock()) c->hear(u);
+    }));
   }
-  void subscribe(home::SoundListenerPrx listener, const p::Current&) override {
-    sounds_.subscribe(listener);
+  ~SimMicrophone() override {
+    std::lock_guard lock(core_->mutex);
+    if (core_->timer != 0) core_->world.clock().cancel(core_->timer);
+    core_->timer = 0;
   }
-  void unsubscribe(home::SoundListenerPrx listener, const p::Current&) override {
-    sounds_.unsubscribe(listener);
+  home::MicrophoneInfo info(const p::Current&) override {
+    return microphone_info({audio::kSpeechRate, static_cast<int>(core_->setup.mics.size())}, core_->setup.mics,
+                           core_->setup.threshold_db, "sim");
   }
-  // Ambient sound: silence with a little noise, `milliseconds` of 16 kHz 16-bit PCM, written at
-  // the speed the reader pulls.
-  p::StreamRef record(std::int32_t milliseconds, const p::Current&) override {
-    check_range("milliseconds", milliseconds, 1, 600000);
-    auto out = p::OutputStream::create(communicator_);
-    asio::co_spawn(communicator_.executor(), write_ambient(out, milliseconds), asio::detached);
-    return out->ref();
+  p::StreamRef capture(std::int64_t since, const p::Current&) override {
+    return core_->captures.open(static_cast<std::uint64_t>(std::max<std::int64_t>(0, since)));
   }
 
  private:
-  static asio::awaitable<void> write_ambient(std::shared_ptr<p::OutputStream> out, std::int32_t ms_total) {
-    std::uint32_t noise = 12345;
-    try {
-      for (std::int32_t done = 0; done < ms_total; done += 100) {
-        std::vector<std::byte> block(32 * static_cast<std::size_t>(std::min(100, ms_total - done)));
-        for (auto& b : block) {
-          noise = noise * 1103515245u + 12345u;
-          b = static_cast<std::byte>((noise >> 16) & 0x07);
-        }
-        co_await out->async_write(std::move(block), asio::use_awaitable);
+  static constexpr std::uint64_t kFramesPerMs = audio::kSpeechRate / 1000;
+  static constexpr Time kDeliveryPeriod{100};  // frames go out in batches of this much audio
+
+  struct Core : std::enable_shared_from_this<Core> {
+    Core(std::string i, SimContext c, MicSetup s)
+        : id(std::move(i)), world(c.world), setup(std::move(s)), captures(c.communicator) {}
+
+    void hear(const sim::Utterance& u) {
+      if (!captures.listened_to()) return;  // nobody ever listened: nothing to render
+      const sim::Pose at = world.device_pose(id);
+      if (world.sound_level(u, at.position()) < setup.threshold_db - 20.0) return;  // far out of hearing
+      std::vector<audio::Path> paths;
+      for (const auto& m : setup.mics) {
+        const sim::Point p{at.x + std::cos(at.theta) * m.x - std::sin(at.theta) * m.y,
+                           at.y + std::sin(at.theta) * m.x + std::cos(at.theta) * m.y};
+        paths.push_back({std::hypot(p.x - u.at.x, p.y - u.at.y), world.sound_level(u, p)});
       }
-      out->close();
-    } catch (const p::Error&) {
-      // The reader went away.
+      const auto* user = world.house().user(u.user);
+      audio::Voice voice;
+      if (user) voice.name = user->voice;
+      audio::AudioBlock heard;
+      try {
+        const auto speech = synthesizer.speak(u.text, voice);
+        auto room = setup.room;
+        room.seed = setup.room.seed ^ std::hash<std::string>{}(u.user + "|" + u.text) ^
+                    static_cast<std::uint64_t>(u.time.count());
+        heard = audio::render(speech, paths, room, kLead, kTail);
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "microphone %s: could not render \"%s\": %s\n", id.c_str(), u.text.c_str(), e.what());
+        return;
+      }
+      const auto lead_frames = static_cast<std::uint64_t>(kLead * audio::kSpeechRate);
+      const auto said = static_cast<std::uint64_t>(std::max<std::int64_t>(0, u.time.count())) * kFramesPerMs;
+      heard.start = said > lead_frames ? said - lead_frames : 0;
+      std::lock_guard lock(mutex);
+      mix(std::move(heard));
+      schedule();
     }
-  }
 
-  void hear(const sim::Utterance& u) {
-    const sim::Pose at = world_.device_pose(id_);
-    const double level = world_.sound_level(u, at.position());
-    if (level < threshold_db_) return;
-    home::SoundEvent e;
-    e.device = id_;
-    e.direction = std::atan2(u.at.y - at.y, u.at.x - at.x);
-    e.level_db = level;
-    e.room = room_of(world_, at.position());
-    e.time_ms = ms(u.time);
-    e.audio = SimulatedSpeech::encode(u.text, level);
-    sounds_.publish(e);
-  }
+    // Adds `block` to what is still to be delivered (several voices at once add up).
+    void mix(audio::AudioBlock block) {
+      const auto channels = static_cast<std::size_t>(block.format.channels);
+      if (block.start < delivered_until) {  // what was already delivered cannot change
+        const auto skip = std::min<std::uint64_t>(delivered_until - block.start, block.frames());
+        block.samples.erase(block.samples.begin(), block.samples.begin() + static_cast<std::ptrdiff_t>(skip * channels));
+        block.start += skip;
+      }
+      if (block.frames() == 0) return;
+      if (pending.samples.empty()) {
+        pending = std::move(block);
+        return;
+      }
+      const auto start = std::min(pending.start, block.start);
+      const auto end = std::max(pending.end(), block.end());
+      if (end - start > kMaxPendingSeconds * audio::kSpeechRate) {
+        // Voices over voices faster than the clock delivers them (a flood of Simulation.say):
+        // what would not fit is not heard, rather than kept without bound.
+        std::fprintf(stderr, "microphone %s: more than %d s of sound waiting; an utterance is dropped\n", id.c_str(),
+                     kMaxPendingSeconds);
+        return;
+      }
+      audio::AudioBlock merged;
+      merged.format = pending.format;
+      merged.start = start;
+      merged.samples.assign((end - start) * channels, 0);
+      for (const auto* part : {&pending, &block}) {
+        const auto offset = (part->start - start) * channels;
+        for (std::size_t i = 0; i < part->samples.size(); ++i) {
+          const int sum = merged.samples[offset + i] + part->samples[i];
+          merged.samples[offset + i] = static_cast<std::int16_t>(std::clamp(sum, -32768, 32767));
+        }
+      }
+      pending = std::move(merged);
+    }
 
-  std::string id_;
-  double threshold_db_;
-  sim::World& world_;
-  p::Communicator& communicator_;
-  p::Publisher<home::SoundEvent> sounds_{home::SoundListener::on_sound};
+    void schedule() {
+      if (timer != 0 || pending.samples.empty()) return;
+      timer = world.clock().schedule_at(world.clock().now(), [weak = weak_from_this()] {
+        if (auto self = weak.lock()) self->deliver();
+      });
+    }
+
+    // Sends what the clock has passed, and comes back for the rest.
+    void deliver() {
+      audio::AudioBlock out;
+      {
+        std::lock_guard lock(mutex);
+        timer = 0;
+        if (pending.samples.empty()) return;
+        const auto now = static_cast<std::uint64_t>(std::max<std::int64_t>(0, world.clock().now().count())) * kFramesPerMs;
+        const auto until = std::min(pending.end(), std::max(now, pending.start));
+        const auto channels = static_cast<std::size_t>(pending.format.channels);
+        const auto count = (until - pending.start) * channels;
+        out.format = pending.format;
+        out.start = pending.start;
+        out.samples.assign(pending.samples.begin(), pending.samples.begin() + static_cast<std::ptrdiff_t>(count));
+        pending.samples.erase(pending.samples.begin(), pending.samples.begin() + static_cast<std::ptrdiff_t>(count));
+        pending.start = until;
+        delivered_until = std::max(delivered_until, until);
+        if (!pending.samples.empty()) {
+          timer = world.clock().schedule_at(world.clock().now() + kDeliveryPeriod, [weak = weak_from_this()] {
+            if (auto self = weak.lock()) self->deliver();
+          });
+        }
+      }
+      captures.push(out);
+    }
+
+    static constexpr int kMaxPendingSeconds = 60;
+    static constexpr double kLead = 0.2;  // s of the room before the voice
+    static constexpr double kTail = 0.6;  // s after it: its reverberation, and quiet for the detector
+
+    std::string id;
+    sim::World& world;
+    MicSetup setup;
+    CaptureStreams captures;
+    audio::Synthesizer synthesizer;
+    std::mutex mutex;
+    audio::AudioBlock pending;           // rendered, not yet delivered
+    std::uint64_t delivered_until = 0;   // frame index
+    std::uint64_t timer = 0;             // the delivery scheduled on the clock, 0: none
+  };
+
+  std::shared_ptr<Core> core_;
   WorldListener listener_;
 };
 
@@ -472,20 +576,6 @@ class SimClockDevice final : public home::ClockServant {
 
 // --- Software devices ------------------------------------------------------------------------
 
-class SimSpeechRecognizer final : public home::SpeechRecognizerServant {
- public:
-  home::Recognition recognize(const p::Binary& audio, const p::Current&) override {
-    const auto speech = SimulatedSpeech::decode(audio);
-    if (!speech) throw home::NotRecognized("no speech in the audio", "not speech");
-    if (speech->level_db < kRecognitionThresholdDb) {
-      throw home::NotRecognized(fmt::format("speech too quiet ({:.0f} dB)", speech->level_db),
-                                "speech too quiet");
-    }
-    const double confidence = std::min(0.99, 0.5 + (speech->level_db - kRecognitionThresholdDb) / 50);
-    return home::Recognition{speech->text, confidence};
-  }
-};
-
 class SimFaceRecognizer final : public home::FaceRecognizerServant {
  public:
   std::vector<home::Face> recognize(const home::Image& image, const p::Current&) override {
@@ -537,43 +627,6 @@ double number_param(const sim::DeviceSpec& spec, const std::string& name, double
 }
 
 }  // namespace
-
-// --- Simulated speech audio ------------------------------------------------------------------
-
-planet::Binary SimulatedSpeech::encode(const std::string& text, double level_db) {
-  // Header, level, text; then ~60 ms of low noise per character, like a real utterance's length.
-  planet::Binary audio;
-  std::vector<std::byte>& b = audio.bytes;
-  const std::size_t samples = 960 * text.size();
-  b.reserve(kSpeechMagic.size() + 12 + text.size() + 2 * samples);
-  b.resize(kSpeechMagic.size());
-  std::memcpy(b.data(), kSpeechMagic.data(), kSpeechMagic.size());
-  planet::Writer w(b);
-  w.f64(level_db);
-  w.str(text);
-  std::uint32_t noise = 0x9E3779B9u ^ static_cast<std::uint32_t>(text.size());
-  for (std::size_t i = 0; i < 2 * samples; ++i) {
-    noise = noise * 1664525u + 1013904223u;
-    b.push_back(static_cast<std::byte>((noise >> 24) & 0x0F));
-  }
-  return audio;
-}
-
-std::optional<SimulatedSpeech::Decoded> SimulatedSpeech::decode(const planet::Binary& audio) {
-  if (audio.bytes.size() < kSpeechMagic.size() + 12 ||
-      std::memcmp(audio.bytes.data(), kSpeechMagic.data(), kSpeechMagic.size()) != 0) {
-    return std::nullopt;
-  }
-  try {
-    planet::Reader r(std::span(audio.bytes).subspan(kSpeechMagic.size()));
-    Decoded d;
-    d.level_db = r.f64();
-    d.text = r.str();
-    return d;
-  } catch (const planet::Error&) {
-    return std::nullopt;
-  }
-}
 
 // --- Factories -------------------------------------------------------------------------------
 
@@ -655,9 +708,44 @@ SimDeviceTypes make_home_types() {
   types.add("Speaker", "a speaker: speaker (home::Speaker)", one_capability("speaker", [](const sim::DeviceSpec& spec, SimContext c) {
     return std::make_shared<SimSpeaker>(spec.id, c);
   }));
-  types.add("Microphone", "a microphone hearing speech: sound_sensor (home::Microphone); param threshold_db",
-            one_capability("sound_sensor", [](const sim::DeviceSpec& spec, SimContext c) {
-              return std::make_shared<SimMicrophone>(spec.id, c, number_param(spec, "threshold_db", kHearingThresholdDb));
+  types.add("Microphone",
+            "a microphone or microphone array hearing the house, or a real one: sound_sensor (home::Microphone); "
+            "params threshold_db, channels, array_radius, noise_db, rt60, source (docs/speech.md)",
+            one_capability("sound_sensor", [](const sim::DeviceSpec& spec, SimContext c) -> std::shared_ptr<p::Servant> {
+              const double threshold = number_param(spec, "threshold_db", kHearingThresholdDb);
+              const auto channels = number_param(spec, "channels", 1);
+              if (channels < 1 || channels > audio::kMaxChannels || channels != std::floor(channels)) {
+                throw std::invalid_argument(fmt::format("device {}: parameter channels = {} is not 1 to {}", spec.id,
+                                                        channels, audio::kMaxChannels));
+              }
+              const double radius = number_param(spec, "array_radius", 0.05);
+              if (radius <= 0 || radius > 1) {
+                throw std::invalid_argument(fmt::format("device {}: parameter array_radius = {} m is not in (0, 1]", spec.id, radius));
+              }
+              // One microphone at the device; two, left and right (a pair tells left from right, not
+              // front from back); more, on a circle with the first straight ahead.
+              auto mics = channels == 1   ? std::vector<audio::MicPosition>{{0, 0}}
+                          : channels == 2 ? std::vector<audio::MicPosition>{{0, radius}, {0, -radius}}
+                                          : audio::circular_array(static_cast<int>(channels), radius);
+              const auto source = param(spec, "source", "sim");
+              if (source != "sim") {
+                audio::SourceOptions options;
+                options.format.channels = static_cast<int>(channels);
+                auto mic = std::make_shared<SourceMicrophone>(audio::open_source(source, options), source, c.world.clock(),
+                                                              c.communicator, std::move(mics), threshold);
+                mic->start();
+                return mic;
+              }
+              MicSetup setup;
+              setup.threshold_db = threshold;
+              setup.mics = std::move(mics);
+              setup.room.noise_db = number_param(spec, "noise_db", setup.room.noise_db);
+              setup.room.rt60 = number_param(spec, "rt60", setup.room.rt60);
+              if (setup.room.rt60 < 0 || setup.room.rt60 > 5) {
+                throw std::invalid_argument(fmt::format("device {}: parameter rt60 = {} s is not in 0..5", spec.id, setup.room.rt60));
+              }
+              setup.room.seed = c.world.house().seed ^ std::hash<std::string>{}(spec.id);
+              return std::make_shared<SimMicrophone>(spec.id, c, std::move(setup));
             }));
   types.add("Wheels", "a robot's wheels: wheels (home::Wheels); carried by a robot",
             one_capability("wheels", [](const sim::DeviceSpec& spec, SimContext c) {
@@ -689,7 +777,7 @@ SimDeviceTypes make_home_types() {
   }));
   types.add("SpeechEngine", "a speech recognizer: speech_recognizer (home::SpeechRecognizer)",
             one_capability("speech_recognizer", [](const sim::DeviceSpec&, SimContext) {
-              return std::make_shared<SimSpeechRecognizer>();
+              return std::make_shared<SpeechRecognizerDevice>();
             }));
   types.add("VisionEngine", "a face recognizer: face_recognizer (home::FaceRecognizer)",
             one_capability("face_recognizer", [](const sim::DeviceSpec&, SimContext) {

@@ -19,6 +19,8 @@
 #include <thread>
 
 #include "child_process.h"
+#include "icars/audio/audio_stream.h"
+#include "icars/audio/pcm.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/sim/sim_devices.h"
@@ -250,46 +252,75 @@ TEST_F(SimDevices, SensorsPublishWhatTheUserDoes) {
   EXPECT_EQ(occupancy.back().furniture, "bed");
 }
 
-TEST_F(SimDevices, TheMicrophoneHearsSpeechTheEngineRecognizesIt) {
-  std::mutex mutex;
-  std::vector<home::SoundEvent> sounds;
-  auto listener = std::make_shared<p::Servant>(std::string(home::SoundListener::type_id));
-  listener->implement(home::SoundListener::on_sound, [&](const home::SoundEvent& e) {
-    std::lock_guard lock(mutex);
-    sounds.push_back(e);
-  });
-  client_.adapter().add("/sounds", listener);
-  capability<home::MicrophonePrx>("robot1_mic", "sound_sensor")
-      .subscribe(client_.reference<home::SoundListener>("/sounds"));
-  world_.say("user1", "turn on the TV");
-  clock_.advance_by(0ms);
-  ASSERT_TRUE(planet_test::wait_until([&] {
-    std::lock_guard lock(mutex);
-    return !sounds.empty();
-  }));
-  home::SoundEvent heard;
-  {
-    std::lock_guard lock(mutex);
-    heard = sounds.front();
-  }
-  EXPECT_EQ(heard.device, "robot1_mic");
-  auto engine = capability<home::SpeechRecognizerPrx>("speech_engine", "speech_recognizer");
-  const auto recognition = engine.recognize(heard.audio);
-  EXPECT_EQ(recognition.text, "turn on the TV");
-  EXPECT_GT(recognition.confidence, 0.5);
-  // Too quiet, or not speech at all: refused with a reason.
-  EXPECT_THROW(engine.recognize(SimulatedSpeech::encode("mumble", 20)), home::NotRecognized);
-  EXPECT_THROW(engine.recognize(p::Binary{std::vector<std::byte>(64, std::byte{1})}),
-               home::NotRecognized);
-}
-
-TEST_F(SimDevices, TheMicrophoneStreamsAmbientAudio) {
+// The robot's microphone array streams what it hears as real audio: the user's sentence,
+// synthesized and rendered at each of its four microphones, in 20 ms frames on the clock's
+// timeline, nothing while nobody speaks; the speech engine (PocketSphinx) recognizes it against
+// a vocabulary and refuses audio it cannot decode, saying why.
+TEST_F(SimDevices, TheMicrophoneArrayStreamsWhatItHearsAndTheEngineRecognizesIt) {
   auto mic = capability<home::MicrophonePrx>("robot1_mic", "sound_sensor");
-  auto audio = mic.record(250);
-  std::size_t bytes = 0;
-  for (auto chunk = audio->read(); !chunk.empty(); chunk = audio->read()) bytes += chunk.size();
-  EXPECT_EQ(bytes, 250u * 32);  // 16 kHz, 16-bit
-  EXPECT_THROW(mic.record(0), home::OutOfRange);
+  const auto info = mic.info();
+  EXPECT_EQ(info.sample_rate, 16000);
+  ASSERT_EQ(info.channels, 4);
+  ASSERT_EQ(info.mic_x.size(), 4u);
+  EXPECT_NEAR(std::hypot(info.mic_x[1], info.mic_y[1]), 0.08, 1e-9);
+  EXPECT_EQ(info.source, "sim");
+  auto capture = mic.capture(0);
+  ASSERT_TRUE(planet_test::wait_until([&] { return capture->buffered() == 0; }));
+
+  const auto said = clock_.now();
+  world_.say("user1", "turn on the TV");
+  for (int i = 0; i < 50; ++i) clock_.advance_by(100ms);  // 5 s: the sentence and its tail
+  world_.say("user1", "stop");                            // the next sound, after a silence
+  for (int i = 0; i < 50; ++i) clock_.advance_by(100ms);
+
+  // The first sentence, up to the gap before the next: the silence between them is not sent.
+  audio::AudioStreamDecoder decoder;
+  audio::AudioBlock heard;
+  heard.format = {16000, 4};
+  bool first = true, gap = false;
+  while (!gap) {
+    const auto bytes = capture->read();
+    ASSERT_FALSE(bytes.empty());
+    for (const auto& f : decoder.feed(bytes)) {
+      EXPECT_EQ(f.format.channels, 4);
+      EXPECT_LE(f.frames(), 320u) << "a frame is 20 ms";
+      if (first) heard.start = f.start;
+      first = false;
+      if (f.start != heard.end()) {
+        gap = true;
+        EXPECT_GE(f.start, heard.end() + 16 * 1000) << "seconds of silence were left out";
+        break;
+      }
+      heard.samples.insert(heard.samples.end(), f.samples.begin(), f.samples.end());
+    }
+  }
+  EXPECT_GT(heard.seconds(), 1.0);
+  EXPECT_LT(heard.seconds(), 4.0);
+  // A reader that comes back asks for what it missed: the microphone sends it again.
+  auto again = mic.capture(static_cast<std::int64_t>(heard.start));
+  audio::AudioStreamDecoder replay;
+  std::vector<audio::AudioBlock> replayed;
+  while (replayed.empty()) {
+    const auto bytes = again->read();
+    ASSERT_FALSE(bytes.empty());
+    replayed = replay.feed(bytes);
+  }
+  EXPECT_EQ(replayed.front().start, heard.start);
+  // The stream starts a little before the words (the room before the voice), on the clock's timeline.
+  EXPECT_NEAR(static_cast<double>(heard.start) / 16.0, static_cast<double>(said.count()) - 200, 1.0);
+
+  auto engine = capability<home::SpeechRecognizerPrx>("speech_engine", "speech_recognizer");
+  const p::Binary audio{audio::pcm_bytes(heard.samples)};
+  const auto recognition = engine.recognize(audio, 16000, 4, {"turn on the tv", "turn off the tv", "channel 5"});
+  EXPECT_EQ(recognition.text, "turn on the tv");
+  EXPECT_GT(recognition.confidence, 0.3);
+  EXPECT_GT(recognition.decode_ms, 0.0);
+  // Not one of the phrases: not recognized, with the reason.
+  EXPECT_THROW(engine.recognize(audio, 16000, 4, {"play music", "stop"}), home::NotRecognized);
+  // Audio it cannot decode at all.
+  EXPECT_THROW(engine.recognize(p::Binary{std::vector<std::byte>(63)}, 16000, 1, {}), home::BadAudio);
+  EXPECT_THROW(engine.recognize(audio, 1000, 4, {"stop"}), home::BadAudio);
+  EXPECT_THROW(engine.recognize(audio, 16000, 0, {"stop"}), home::BadAudio);
 }
 
 TEST_F(SimDevices, TheCameraSeesTheUserInItsRoomAndTheVisionEngineReadsIt) {
@@ -653,6 +684,17 @@ TEST(SimDeviceFactory, UnknownTypesAndBadParametersAreRefusedClearly) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("threshold_db = 'loud' is not a number"), std::string::npos)
         << e.what();
+  }
+  spec.params = {{"channels", "0"}};
+  EXPECT_THROW(make_sim_device(spec, SimContext{world, communicator}), std::invalid_argument);
+  spec.params = {{"channels", "2"}, {"array_radius", "-1"}};
+  EXPECT_THROW(make_sim_device(spec, SimContext{world, communicator}), std::invalid_argument);
+  spec.params = {{"source", "tape:reel"}};
+  try {
+    make_sim_device(spec, SimContext{world, communicator});
+    FAIL() << "an unknown audio source was accepted";
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find("tape:reel"), std::string::npos) << e.what();
   }
 }
 

@@ -36,18 +36,6 @@
 
 namespace icars::home {
 
-// Simulated speech audio: what a simulated microphone records when someone speaks, 16 kHz
-// 16-bit PCM whose first samples carry the words, so a simulated recognizer can "hear" them.
-struct SimulatedSpeech {
-  static planet::Binary encode(const std::string& text, double level_db);
-  // The words and level, or nullopt when the audio holds no simulated speech.
-  struct Decoded {
-    std::string text;
-    double level_db = 0;
-  };
-  static std::optional<Decoded> decode(const planet::Binary& audio);
-};
-
 // What a simulated actuator did, as the house would show it ("tv: power on"), independent of
 // what any client believes: one per accepted command, after the device's state changed (or
 // was confirmed: turning on a TV that is on is reported too). Refused commands report nothing.

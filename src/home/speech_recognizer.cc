@@ -1,0 +1,108 @@
+#include "icars/home/speech_recognizer.h"
+
+#include <fmt/format.h>
+
+#include <asio/post.hpp>
+#include <asio/this_coro.hpp>
+#include <asio/use_awaitable.hpp>
+
+#include "icars/clock/activity.h"
+#include "icars/planet/communicator.h"
+#include "icars/planet/error.h"
+
+namespace icars::home {
+
+SpeechRecognizerDevice::SpeechRecognizerDevice(audio::RecognizerOptions options, int decoders)
+    : options_(std::move(options)), unmade_(std::max(1, decoders)),
+      workers_(static_cast<std::size_t>(std::max(1, decoders))) {
+  // recognize() as a coroutine: the decoding moves to the workers and the answer comes back on
+  // the io thread (this replaces the generated synchronous dispatch of the operation).
+  implement(home::SpeechRecognizer::recognize,
+            [this](planet::Binary audio, std::int32_t sample_rate, std::int32_t channels,
+                   std::vector<std::string> phrases, const planet::Current& current) -> asio::awaitable<home::Recognition> {
+              Activity::Hold busy(current.communicator ? current.communicator->activity().get() : nullptr);
+              const auto io = co_await asio::this_coro::executor;
+              co_await asio::post(workers_, asio::use_awaitable);
+              home::Recognition result;
+              std::exception_ptr error;
+              try {
+                result = decode(audio, sample_rate, channels, phrases);
+              } catch (...) {
+                error = std::current_exception();
+              }
+              co_await asio::post(io, asio::use_awaitable);
+              if (error) std::rethrow_exception(error);
+              co_return result;
+            });
+}
+
+SpeechRecognizerDevice::~SpeechRecognizerDevice() { workers_.join(); }
+
+std::unique_ptr<audio::Recognizer> SpeechRecognizerDevice::take() {
+  std::unique_lock lock(mutex_);
+  if (idle_.empty() && unmade_ > 0) {
+    --unmade_;  // a decoder loads its model on first use: a house that never hears speech pays nothing
+    lock.unlock();
+    try {
+      return std::make_unique<audio::Recognizer>(options_);
+    } catch (...) {
+      std::lock_guard again(mutex_);
+      ++unmade_;
+      throw;
+    }
+  }
+  returned_.wait(lock, [this] { return !idle_.empty(); });
+  auto r = std::move(idle_.back());
+  idle_.pop_back();
+  return r;
+}
+
+void SpeechRecognizerDevice::give_back(std::unique_ptr<audio::Recognizer> r) {
+  {
+    std::lock_guard lock(mutex_);
+    idle_.push_back(std::move(r));
+  }
+  returned_.notify_one();
+}
+
+home::Recognition SpeechRecognizerDevice::recognize(const planet::Binary& audio, std::int32_t sample_rate,
+                                                    std::int32_t channels, const std::vector<std::string>& phrases,
+                                                    const planet::Current&) {
+  return decode(audio, sample_rate, channels, phrases);
+}
+
+home::Recognition SpeechRecognizerDevice::decode(const planet::Binary& audio, std::int32_t sample_rate,
+                                                 std::int32_t channels, const std::vector<std::string>& phrases) {
+  const auto bad = [](std::string reason) { return home::BadAudio(reason, reason); };
+  if (channels < 1 || channels > 16) throw bad(fmt::format("{} channels: expected 1 to 16", channels));
+  const auto frame_bytes = 2 * static_cast<std::size_t>(channels);
+  if (audio.bytes.size() % frame_bytes != 0) {
+    throw bad(fmt::format("{} bytes are not whole frames of {} 16-bit channels", audio.bytes.size(), channels));
+  }
+  audio::AudioBlock block;
+  block.format = {sample_rate, channels};
+  block.samples = audio::pcm_samples(audio.bytes);
+  std::unique_ptr<audio::Recognizer> recognizer;
+  try {
+    recognizer = take();
+  } catch (const audio::AudioError& e) {
+    throw planet::Error(planet::ErrorKind::failed, std::string("the speech recognizer cannot start: ") + e.what());
+  }
+  audio::Recognition r;
+  try {
+    recognizer->set_phrases(phrases);
+    r = recognizer->recognize(block);
+  } catch (const audio::AudioError& e) {
+    give_back(std::move(recognizer));
+    throw bad(e.what());
+  }
+  give_back(std::move(recognizer));
+  ++decoded_;
+  if (!r.recognized) {
+    const auto why = r.heard.empty() ? r.reason : fmt::format("{} (heard \"{}\")", r.reason, r.heard);
+    throw home::NotRecognized(why, why);
+  }
+  return home::Recognition{r.text, r.confidence, r.heard, r.decode_seconds * 1000.0};
+}
+
+}  // namespace icars::home
