@@ -50,6 +50,7 @@ check "benchmark smoke run: upper_bench" build/release/bench/upper_bench --runs 
 check "benchmark smoke run: dashboard_bench" build/release/bench/dashboard_bench --runs 1 --records 5000 \
   --latency-records 200 --days 1 >/dev/null
 check "benchmark smoke run: mqtt_bridge" build/release/bench/mqtt_bridge --runs 1 --commands 50 >/dev/null
+check "benchmark smoke run: speech_bench" build/release/bench/speech_bench --quick >/dev/null
 results=$(mktemp -d)
 build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
   --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; failed+=("benchmark smoke run: icars-compare"); }
