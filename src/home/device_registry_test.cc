@@ -179,7 +179,6 @@ TEST_F(SF, SpeechSensorTurnsSoundIntoRecognizedSpeech) {
   ASSERT_EQ(future.wait_for(20s), std::future_status::ready);
   const SpeechEvent e = future.get();
   EXPECT_EQ(e.device, "robot1_mic");
-  EXPECT_TRUE(std::isnan(e.direction)) << "one microphone cannot tell a direction";
   EXPECT_DOUBLE_EQ(e.confidence, 0.9);
 }
 

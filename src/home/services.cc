@@ -2,7 +2,6 @@
 
 #include <asio/post.hpp>
 
-#include <limits>
 #include <set>
 
 namespace icars::home {
@@ -38,8 +37,6 @@ void SpeechSensor::on_sound(const home::SoundEvent& e) {
   h.audio = e.audio;
   h.sample_rate = e.sample_rate;
   h.channels = e.channels;
-  // Where it came from is the SoundLocalizer's to say (SoundDirection), off the io thread.
-  h.speech.direction = std::numeric_limits<double>::quiet_NaN();
   h.speech.room = e.room;
   h.speech.device = e.device;
   h.speech.time_ms = e.time_ms;
