@@ -2,8 +2,7 @@
 
 #include <fmt/format.h>
 
-#include <asio/post.hpp>
-#include <asio/this_coro.hpp>
+#include <asio/co_spawn.hpp>
 #include <asio/use_awaitable.hpp>
 
 #include "icars/clock/activity.h"
@@ -15,24 +14,22 @@ namespace icars::home {
 SpeechRecognizerDevice::SpeechRecognizerDevice(audio::RecognizerOptions options, int decoders)
     : options_(std::move(options)), unmade_(std::max(1, decoders)),
       workers_(static_cast<std::size_t>(std::max(1, decoders))) {
-  // recognize() as a coroutine: the decoding moves to the workers and the answer comes back on
-  // the io thread (this replaces the generated synchronous dispatch of the operation).
+  // recognize() as a coroutine: the decoding runs on the workers and the answer goes back from
+  // the io thread, which meanwhile serves every other call of this process. (A bare
+  // `co_await asio::post(workers_, use_awaitable)` would not move it: a coroutine resumes on its
+  // own executor, so the decoding would block the io thread. co_spawn runs the inner coroutine
+  // on the workers and resumes this one on the io thread with its result or exception.)
   implement(home::SpeechRecognizer::recognize,
             [this](planet::Binary audio, std::int32_t sample_rate, std::int32_t channels,
                    std::vector<std::string> phrases, const planet::Current& current) -> asio::awaitable<home::Recognition> {
               Activity::Hold busy(current.communicator ? current.communicator->activity().get() : nullptr);
-              const auto io = co_await asio::this_coro::executor;
-              co_await asio::post(workers_, asio::use_awaitable);
-              home::Recognition result;
-              std::exception_ptr error;
-              try {
-                result = decode(audio, sample_rate, channels, phrases);
-              } catch (...) {
-                error = std::current_exception();
-              }
-              co_await asio::post(io, asio::use_awaitable);
-              if (error) std::rethrow_exception(error);
-              co_return result;
+              // A capture-less coroutine: its arguments live in its own frame, on the workers.
+              const auto on_worker = [](SpeechRecognizerDevice* self, planet::Binary pcm, std::int32_t rate,
+                                        std::int32_t count, std::vector<std::string> wanted)
+                  -> asio::awaitable<home::Recognition> { co_return self->decode(pcm, rate, count, wanted); };
+              co_return co_await asio::co_spawn(
+                  workers_, on_worker(this, std::move(audio), sample_rate, channels, std::move(phrases)),
+                  asio::use_awaitable);
             });
 }
 

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <numbers>
@@ -21,6 +22,7 @@
 #include "child_process.h"
 #include "icars/audio/audio_stream.h"
 #include "icars/audio/pcm.h"
+#include "icars/audio/synthesizer.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
 #include "icars/home/sim/sim_devices.h"
@@ -321,6 +323,33 @@ TEST_F(SimDevices, TheMicrophoneArrayStreamsWhatItHearsAndTheEngineRecognizesIt)
   EXPECT_THROW(engine.recognize(p::Binary{std::vector<std::byte>(63)}, 16000, 1, {}), home::BadAudio);
   EXPECT_THROW(engine.recognize(audio, 1000, 4, {"stop"}), home::BadAudio);
   EXPECT_THROW(engine.recognize(audio, 16000, 0, {"stop"}), home::BadAudio);
+}
+
+// Decoding takes hundreds of milliseconds of CPU a sentence: it runs beside the device
+// manager's io thread, which meanwhile answers every other call (a house's clock polled by the
+// server, a command to the TV) instead of keeping them waiting behind the decoder.
+TEST_F(SimDevices, TheSpeechEngineDecodesWhileTheOtherDevicesKeepAnswering) {
+  audio::Synthesizer synthesizer;
+  const auto sentence = audio::to_block(synthesizer.speak("turn on the tv and then play some relaxing music please"));
+  audio::AudioBlock speech;  // half a minute of talking: seconds of decoding
+  while (static_cast<double>(speech.samples.size()) / audio::kSpeechRate < 30.0) {
+    speech.samples.insert(speech.samples.end(), sentence.samples.begin(), sentence.samples.end());
+  }
+  auto engine = capability<home::SpeechRecognizerPrx>("speech_engine", "speech_recognizer");
+  auto simulation = capability<home::SimulationPrx>("simulator", "simulation");
+  auto tv = capability<home::TVControlPrx>("tv", "tv_control");
+  std::promise<void> decoded;
+  auto done = decoded.get_future();
+  engine.recognize_async(p::Binary{audio::pcm_bytes(speech.samples)}, audio::kSpeechRate, 1,
+                         {"turn on the tv", "play music"},
+                         [&decoded](std::exception_ptr, home::Recognition) { decoded.set_value(); });
+  // Sent after the audio on the same connection, answered before the decoder is done with it.
+  for (int i = 0; i < 20; ++i) {
+    EXPECT_EQ(simulation.now_ms(), at_time(0, 18, 0).count());
+    tv.set_power(i % 2 == 0);
+  }
+  EXPECT_EQ(done.wait_for(0s), std::future_status::timeout) << "the decoding held up the other devices' calls";
+  EXPECT_EQ(done.wait_for(120s), std::future_status::ready);
 }
 
 TEST_F(SimDevices, TheCameraSeesTheUserInItsRoomAndTheVisionEngineReadsIt) {
