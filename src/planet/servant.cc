@@ -1,6 +1,12 @@
 #include "icars/planet/servant.h"
 
+#include "icars/clock/activity.h"
+#include "icars/planet/communicator.h"
+
 #include <fmt/format.h>
+
+#include <asio/co_spawn.hpp>
+#include <asio/use_awaitable.hpp>
 
 #include <mutex>
 #include <stdexcept>
@@ -34,7 +40,37 @@ std::optional<Servant::AsyncResult> Servant::dispatch(std::string_view method, R
                 fmt::format("servant at '{}' ({}) has no method '{}'", current.path, type_id_,
                             method));
   }
+  if (executor_ && !coroutines_.contains(method)) {
+    const auto rest = args.rest();
+    return run_elsewhere(it->second, std::vector<std::byte>(rest.begin(), rest.end()), result != nullptr, current,
+                         std::string(current.path), std::string(current.method));
+  }
   return it->second(args, result, current);
+}
+
+Servant::AsyncResult Servant::run_elsewhere(const Method& method, std::vector<std::byte> args, bool two_way,
+                                            Current current, std::string path, std::string name) {
+  // Work in progress of this process while it runs elsewhere (a lock-step clock waits for it).
+  Activity::Hold busy(current.communicator ? current.communicator->activity().get() : nullptr);
+  current.path = path;
+  current.method = name;
+  // A capture-less coroutine: what it uses lives in its own frame, on the executor.
+  const auto on_executor = [](const Method* fn, std::vector<std::byte> bytes, bool reply,
+                              Current call) -> asio::awaitable<std::vector<std::byte>> {
+    struct Running {
+      Running() { ++detail::t_running_calls; }
+      ~Running() { --detail::t_running_calls; }
+      Running(const Running&) = delete;
+      Running& operator=(const Running&) = delete;
+    } running;
+    Reader in(bytes);
+    std::vector<std::byte> out;
+    Writer w(out);
+    if (auto pending = (*fn)(in, reply ? &w : nullptr, call)) co_return co_await std::move(*pending);
+    co_return out;
+  };
+  co_return co_await asio::co_spawn(executor_, on_executor(&method, std::move(args), two_way, current),
+                                    asio::use_awaitable);
 }
 
 // --- ObjectAdapter::Dispatch ----------------------------------------------------------------

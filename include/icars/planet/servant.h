@@ -17,6 +17,7 @@
 // The ObjectAdapter maps servant paths ("/home/tv") to servants.
 #pragma once
 
+#include <asio/any_io_executor.hpp>
 #include <asio/awaitable.hpp>
 #include <condition_variable>
 #include <cstdint>
@@ -182,6 +183,7 @@ class Servant {
     using Returned = std::remove_cvref_t<decltype(detail::invoke_with_current(
         fn, std::declval<std::tuple<A...>&>(), std::declval<const Current&>()))>;
     if constexpr (detail::IsAwaitable<Returned>::value) {
+      coroutines_[std::string(name)] = true;
       methods_[std::string(name)] = [fn = std::move(fn), name](
                                         Reader& in, Writer*,
                                         const Current& current) -> std::optional<AsyncResult> {
@@ -208,6 +210,16 @@ class Servant {
       return std::nullopt;
     };
   }
+
+  // Runs this servant's synchronous operations on `executor` instead of the communicator's io
+  // thread, for a servant whose operations block (a device that writes its state to disk
+  // before it replies, a driver waiting on its hardware): meanwhile the io thread goes on
+  // serving the other servants, events and heartbeats of every connection. A strand (or any
+  // one-thread executor) keeps this servant's calls one at a time and in order. The arguments
+  // are decoded and the reply is sent as usual; operations implemented as coroutines run
+  // where they are written to. Set before the servant is added to an adapter; the executor
+  // must outlive the calls in progress.
+  void run_on(asio::any_io_executor executor) { executor_ = std::move(executor); }
 
   // Decodes the arguments in `args`, runs the method and, for a CALL, writes the tagged result
   // into `result`; an asynchronous implementation instead returns the coroutine that produces
@@ -254,8 +266,14 @@ class Servant {
   }
 
   using Method = std::function<std::optional<AsyncResult>(Reader&, Writer*, const Current&)>;
+  // Runs `method` (synchronous) on executor_ with a copy of the arguments.
+  AsyncResult run_elsewhere(const Method& method, std::vector<std::byte> args, bool two_way, Current current,
+                            std::string path, std::string name);
+
   std::string type_id_;
   std::unordered_map<std::string, Method, detail::StringHash, std::equal_to<>> methods_;
+  std::unordered_map<std::string, bool, detail::StringHash, std::equal_to<>> coroutines_;  // async methods
+  asio::any_io_executor executor_;  // none: the io thread
 };
 
 namespace detail {

@@ -97,7 +97,9 @@ class KeptState {
 class SimTV final : public home::TVControlServant {
  public:
   SimTV(const std::string& id, const SimContext& context)
-      : report_(id, context), state_(id, context.state, context.state ? context.state->tv(id) : SimTVState{}) {}
+      : report_(id, context), state_(id, context.state, context.state ? context.state->tv(id) : SimTVState{}) {
+    if (context.state) run_on(context.state->command_executor());  // commands wait for the disk
+  }
   void set_power(bool on, const p::Current& current) override {
     state_.change([&](SimTVState& s) { s.on = on; });
     report_("power", on_off(on), current);
@@ -126,7 +128,9 @@ class SimLight final : public home::LightServant {
  public:
   SimLight(const std::string& id, const SimContext& context)
       : report_(id, context),
-        state_(id, context.state, context.state ? context.state->light(id) : SimLightState{}) {}
+        state_(id, context.state, context.state ? context.state->light(id) : SimLightState{}) {
+    if (context.state) run_on(context.state->command_executor());  // commands wait for the disk
+  }
   void set_power(bool on, const p::Current& current) override {
     state_.change([&](SimLightState& s) { s.on = on; });
     report_("power", on_off(on), current);
@@ -150,7 +154,9 @@ class SimSpeaker final : public home::SpeakerServant {
  public:
   SimSpeaker(const std::string& id, const SimContext& context)
       : report_(id, context),
-        state_(id, context.state, context.state ? context.state->speaker(id) : SimSpeakerState{}) {}
+        state_(id, context.state, context.state ? context.state->speaker(id) : SimSpeakerState{}) {
+    if (context.state) run_on(context.state->command_executor());  // commands wait for the disk
+  }
   void play(const std::string& track, const p::Current& current) override {
     state_.change([&](SimSpeakerState& s) { s.playing = track; });
     report_("playing", track, current);
@@ -363,6 +369,7 @@ class SimWheels final : public home::WheelsServant {
   SimWheels(std::string robot, std::string device, SimContext context)
       : robot_(std::move(robot)), world_(context.world), report_(std::move(device), context),
         file_(context.state), listener_(context.world) {
+    if (file_) run_on(file_->command_executor());  // commands wait for the disk
     listener_.set(world_.on_robot_pose(
         [this](const std::string& which, const sim::Pose& pose, bool moving) {
           if (which != robot_) return;

@@ -147,6 +147,7 @@ SimStateFile::SimStateFile(std::filesystem::path path, sim::World& world,
 }
 
 SimStateFile::~SimStateFile() {
+  commands_.join();  // the commands in progress end (their commits need the writer)
   {
     std::lock_guard lock(mutex_);
     stopping_ = true;

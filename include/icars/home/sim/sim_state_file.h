@@ -12,6 +12,10 @@
 // every `min_interval` of wall time.
 #pragma once
 
+#include <asio/any_io_executor.hpp>
+#include <asio/strand.hpp>
+#include <asio/thread_pool.hpp>
+
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -105,6 +109,12 @@ class SimStateFile {
   // Something changed that nobody waits for: written within min_interval.
   void changed();
 
+  // Where the commands of a device kept in this file run (planet::Servant::run_on): a strand
+  // of its own on a small pool, so that a command waiting in commit() for the disk (an fsync
+  // may take a second on a busy disk) keeps neither the device manager's io thread nor the
+  // other devices waiting; one device's commands still run one at a time and in order.
+  asio::any_io_executor command_executor() { return asio::make_strand(commands_.get_executor()); }
+
   std::uint64_t writes() const;    // completed writes, for tests
   std::string last_error() const;  // the last write's error, or ""
 
@@ -138,6 +148,7 @@ class SimStateFile {
   bool stopping_ = false;
   std::chrono::steady_clock::time_point last_write_{};
   std::thread writer_;
+  asio::thread_pool commands_{2};  // joined first: its commands wait for the writer
 };
 
 }  // namespace icars::home
