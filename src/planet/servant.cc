@@ -30,6 +30,14 @@ void fail_arity(Reader& r, std::string_view method, std::size_t expected, std::s
 // called from inside one must not wait, it might wait for itself.
 thread_local int t_running_calls = 0;
 
+// Counts a servant call in t_running_calls while it runs on this thread.
+struct RunningCall {
+  RunningCall() { ++t_running_calls; }
+  ~RunningCall() { --t_running_calls; }
+  RunningCall(const RunningCall&) = delete;
+  RunningCall& operator=(const RunningCall&) = delete;
+};
+
 }  // namespace detail
 
 std::optional<Servant::AsyncResult> Servant::dispatch(std::string_view method, Reader& args,
@@ -57,16 +65,15 @@ Servant::AsyncResult Servant::run_elsewhere(const Method& method, std::vector<st
   // A capture-less coroutine: what it uses lives in its own frame, on the executor.
   const auto on_executor = [](const Method* fn, std::vector<std::byte> bytes, bool reply,
                               Current call) -> asio::awaitable<std::vector<std::byte>> {
-    struct Running {
-      Running() { ++detail::t_running_calls; }
-      ~Running() { --detail::t_running_calls; }
-      Running(const Running&) = delete;
-      Running& operator=(const Running&) = delete;
-    } running;
     Reader in(bytes);
     std::vector<std::byte> out;
     Writer w(out);
-    if (auto pending = (*fn)(in, reply ? &w : nullptr, call)) co_return co_await std::move(*pending);
+    std::optional<AsyncResult> pending;
+    {
+      const detail::RunningCall running;  // counted while it runs on this thread
+      pending = (*fn)(in, reply ? &w : nullptr, call);
+    }
+    if (pending) co_return co_await std::move(*pending);
     co_return out;
   };
   co_return co_await asio::co_spawn(executor_, on_executor(&method, std::move(args), two_way, current),
@@ -99,12 +106,7 @@ void ObjectAdapter::Dispatch::release() {
 std::optional<Servant::AsyncResult> ObjectAdapter::Dispatch::run(std::string_view method,
                                                                  Reader& args, Writer* result,
                                                                  const Current& current) {
-  struct Running {
-    Running() { ++detail::t_running_calls; }
-    ~Running() { --detail::t_running_calls; }
-    Running(const Running&) = delete;
-    Running& operator=(const Running&) = delete;
-  } running;
+  const detail::RunningCall running;
   return servant_->dispatch(method, args, result, current);
 }
 
