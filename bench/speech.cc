@@ -5,7 +5,7 @@
 //
 //   speech_bench [--runs 3] [--voices en-us,en-us+f3,en] [--distances 1,2,4,6] [--noise 30,50]
 //                [--rt60 0.4] [--min-confidence 0.3] [--vad-threshold-db 9] [--hangover-ms 400]
-//                [--quick] [--details]
+//                [--array 4 [--array-radius 0.08] [--bearing 30] [--steer]] [--quick] [--details]
 //
 // The vocabulary is what the paper policy's voice behaviors act on (VoiceTVControl and
 // VoiceAudioControl in src/home/behaviors.cc); the sentences are what the simulated user says in
@@ -19,6 +19,11 @@
 //   detect       the capture fed to a VoiceActivityDetector in 20 ms blocks, as a microphone
 //                delivers it; flushed at the end;
 //   recognize    Recognizer::recognize of every utterance it cut.
+// With --array N the talker stands at --bearing from the centre of N microphones on a circle
+// (one path to each, each with its own reverberation and noise); the detector gets every
+// channel, and each utterance is recognized mixed down (its channels averaged) or, with
+// --steer, beamformed: delay-and-sum (steer_towards) towards the direction estimate_direction
+// finds in it, as the robot's four microphones can.
 // Every run uses other noise and reverberation seeds. Measured per (voice, distance, noise), the
 // trials pooled over the runs:
 //   detected          trials where the detector cut at least one utterance;
@@ -48,6 +53,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <map>
+#include <numbers>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -167,23 +173,40 @@ struct TrialResult {
   double utterance_s = 0;   // in the utterances it cut
 };
 
+// With an array: its microphones, and whether the utterances are beamformed (delay-and-sum
+// towards the direction estimate_direction finds) or mixed down before recognition.
+struct ArraySetup {
+  std::vector<a::MicPosition> mics;  // empty: one microphone
+  bool steer = false;
+  double bearing_deg = 30;  // where the talker is, seen from the array
+};
+
 struct Pipeline {
   a::Synthesizer synthesizer;
   a::Recognizer recognizer;
   a::VadOptions vad;
   double rt60 = 0.4;
+  ArraySetup array;
 
   // One sentence through the pipeline (see the file comment).
   TrialResult trial(const std::string& sentence, const a::Voice& voice, double distance,
                     double noise_db, std::uint64_t seed) {
     const a::Signal spoken = synthesizer.speak(sentence, voice);
     a::RoomSound room{.rt60 = rt60, .critical_distance = 1.0, .noise_db = noise_db, .seed = seed};
-    const a::Path path{.distance = distance, .level_db = kLevelAt1m - 20 * std::log10(distance)};
-    const a::AudioBlock voice_at_mic = a::render(spoken, {path}, room, kRenderLead, kRenderTail);
+    // The talker `distance` from the array's centre at array.bearing_deg; a path to each microphone.
+    std::vector<a::Path> paths;
+    const double theta = array.bearing_deg * std::numbers::pi / 180.0;
+    const double tx = distance * std::cos(theta), ty = distance * std::sin(theta);
+    for (const auto& m : array.mics.empty() ? std::vector<a::MicPosition>{{0, 0}} : array.mics) {
+      const double d = std::hypot(tx - m.x, ty - m.y);
+      paths.push_back({.distance = d, .level_db = kLevelAt1m - 20 * std::log10(d)});
+    }
+    const int channels = static_cast<int>(paths.size());
+    const a::AudioBlock voice_at_mic = a::render(spoken, paths, room, kRenderLead, kRenderTail);
     room.seed = seed + 1;
-    const a::AudioBlock before = a::room_noise(kLeadNoise, 1, room);
+    const a::AudioBlock before = a::room_noise(kLeadNoise, channels, room);
     room.seed = seed + 2;
-    const a::AudioBlock after = a::room_noise(kTrailNoise, 1, room);
+    const a::AudioBlock after = a::room_noise(kTrailNoise, channels, room);
     std::vector<std::int16_t> capture = before.samples;
     capture.insert(capture.end(), voice_at_mic.samples.begin(), voice_at_mic.samples.end());
     capture.insert(capture.end(), after.samples.begin(), after.samples.end());
@@ -193,14 +216,21 @@ struct Pipeline {
         static_cast<double>(spoken.samples.size()) + distance / a::kSpeedOfSound * a::kSpeechRate;
 
     TrialResult result;
-    result.audio_s = static_cast<double>(capture.size()) / a::kSpeechRate;
+    const auto frames = capture.size() / static_cast<std::size_t>(channels);
+    result.audio_s = static_cast<double>(frames) / a::kSpeechRate;
     const double cpu_start = process_cpu_seconds();
     a::VoiceActivityDetector detector(vad);
     std::string outcome;
     std::optional<double> latency;
     const auto decode = [&](const a::Utterance& u, std::uint64_t delivered_at) {
       const auto begin = Clock::now();
-      const a::Recognition r = recognizer.recognize(u.audio);
+      a::Recognition r;
+      if (array.steer && u.audio.format.channels > 1) {
+        const auto where = a::estimate_direction(u.audio, array.mics);
+        r = recognizer.recognize(a::to_block(a::steer_towards(u.audio, array.mics, where.bearing)));
+      } else {
+        r = recognizer.recognize(u.audio);
+      }
       const double wall = std::chrono::duration<double>(Clock::now() - begin).count();
       result.detected = true;
       result.rtf.push_back(wall / u.audio.seconds());
@@ -214,18 +244,19 @@ struct Pipeline {
       }
     };
     a::AudioBlock block;
-    block.format = {a::kSpeechRate, 1};
-    for (std::size_t at = 0; at < capture.size(); at += kBlockFrames) {
-      const std::size_t n = std::min(kBlockFrames, capture.size() - at);
+    block.format = {a::kSpeechRate, channels};
+    const auto width = static_cast<std::size_t>(channels);
+    for (std::size_t at = 0; at < frames; at += kBlockFrames) {
+      const std::size_t n = std::min(kBlockFrames, frames - at);
       block.start = at;
-      block.samples.assign(capture.begin() + static_cast<std::ptrdiff_t>(at),
-                           capture.begin() + static_cast<std::ptrdiff_t>(at + n));
+      block.samples.assign(capture.begin() + static_cast<std::ptrdiff_t>(at * width),
+                           capture.begin() + static_cast<std::ptrdiff_t>((at + n) * width));
       const double feed_start = process_cpu_seconds();
       const auto utterances = detector.feed(block);
       result.vad_cpu_s += process_cpu_seconds() - feed_start;
       for (const auto& u : utterances) decode(u, block.end());
     }
-    if (const auto u = detector.flush()) decode(*u, capture.size());
+    if (const auto u = detector.flush()) decode(*u, frames);
     result.cpu_s = process_cpu_seconds() - cpu_start;
     result.latency_s = latency;
     result.outcome = result.detected ? outcome : "not detected";
@@ -343,6 +374,17 @@ int main(int argc, char** argv) {
   app.add_option("--hangover-ms", vad.hangover_ms, "VadOptions::hangover_ms")
       ->check(CLI::Range(20, 5000));
   app.add_flag("--details", details, "list every trial that failed");
+  int array_mics = 0;
+  double array_radius = 0.08;
+  ArraySetup array;
+  app.add_option("--array", array_mics,
+                 "a circular array of this many microphones instead of one (the robot's: 4)")
+      ->check(CLI::Range(2, 16));
+  app.add_option("--array-radius", array_radius, "the array's radius, m")->check(CLI::Range(0.01, 1.0));
+  app.add_option("--bearing", array.bearing_deg, "where the talker is, seen from the array, degrees");
+  app.add_flag("--steer", array.steer,
+               "with --array: beamform each utterance towards its estimated direction (delay-and-sum) "
+               "instead of mixing the channels down");
   CLI11_PARSE(app, argc, argv);
   if (quick) {
     runs = 1;
@@ -351,7 +393,8 @@ int main(int argc, char** argv) {
   }
 
   try {
-    Pipeline pipeline{{}, a::Recognizer(recognizer_options), vad, rt60};
+    if (array_mics > 0) array.mics = a::circular_array(array_mics, array_radius);
+    Pipeline pipeline{{}, a::Recognizer(recognizer_options), vad, rt60, array};
     const auto effects = house_effects();
     std::vector<std::string> vocabulary;
     for (const auto& [phrase, effect] : effects) vocabulary.push_back(phrase);
@@ -369,6 +412,11 @@ int main(int argc, char** argv) {
         "dB, hangover {} ms.\n\n",
         vocabulary.size(), kCommands.size(), kOutOfVocabulary.size(), runs, runs == 1 ? "" : "s",
         rt60, kLevelAt1m, recognizer_options.min_confidence, vad.threshold_db, vad.hangover_ms);
+    if (!array.mics.empty()) {
+      fmt::print("A circular array of {} microphones, radius {} m, the talker at {} degrees; utterances {}.\n\n",
+                 array.mics.size(), array_radius, array.bearing_deg,
+                 array.steer ? "beamformed towards their estimated direction (delay-and-sum)" : "mixed down");
+    }
     std::fflush(stdout);
 
     std::vector<Row> rows;

@@ -119,6 +119,48 @@ double gcc_phat_delay(const std::vector<float>& a, const std::vector<float>& b, 
   return best_tau / sample_rate;
 }
 
+Signal steer_towards(const AudioBlock& audio, const std::vector<MicPosition>& mics, double bearing) {
+  const auto channels = static_cast<std::size_t>(audio.format.channels);
+  if (mics.empty() || channels != mics.size()) {
+    throw AudioError(fmt::format("steer_towards: {} channels of audio for {} microphone positions",
+                                 audio.format.channels, mics.size()));
+  }
+  const int rate = audio.format.sample_rate;
+  Signal out;
+  out.sample_rate = rate;
+  const std::size_t frames = audio.frames();
+  if (frames == 0) return out;
+  // A microphone nearer the source by d metres hears it d / c earlier: delay it by that much.
+  std::vector<double> delays;  // samples
+  double longest = 0;
+  for (const auto& m : mics) {
+    delays.push_back((m.x * std::cos(bearing) + m.y * std::sin(bearing)) / kSpeedOfSound * rate);
+    longest = std::max(longest, std::abs(delays.back()));
+  }
+  const auto pad = static_cast<std::size_t>(std::ceil(longest)) + 1;
+  RealFft fft(fft_size_for(frames + 2 * pad));
+  const double n = static_cast<double>(fft.size());
+  std::vector<float> channel(frames + 2 * pad, 0.0f);
+  std::vector<std::complex<float>> spectrum(fft.bins()), sum(fft.bins());
+  for (std::size_t c = 0; c < channels; ++c) {
+    for (std::size_t i = 0; i < frames; ++i) {
+      channel[pad + i] = static_cast<float>(audio.samples[i * channels + c]) / 32768.0f;
+    }
+    fft.forward(channel, spectrum);
+    for (std::size_t k = 0; k < spectrum.size(); ++k) {
+      const double phase = -2.0 * std::numbers::pi * static_cast<double>(k) / n * delays[c];
+      sum[k] += spectrum[k] * std::complex<float>(static_cast<float>(std::cos(phase)),
+                                                  static_cast<float>(std::sin(phase)));
+    }
+  }
+  std::vector<float> aligned(fft.size());
+  fft.inverse(sum, aligned);
+  const auto scale = static_cast<float>(1.0 / (n * static_cast<double>(channels)));
+  out.samples.resize(frames);
+  for (std::size_t i = 0; i < frames; ++i) out.samples[i] = aligned[pad + i] * scale;
+  return out;
+}
+
 DirectionEstimate estimate_direction(const AudioBlock& audio, const std::vector<MicPosition>& mics,
                                      double resolution_deg) {
   if (mics.size() < 2) {

@@ -138,6 +138,36 @@ TEST(Direction, TwoMicrophonesReportTheFrontImage) {
   EXPECT_LT(angle_error_deg(estimate.bearing, radians(120)), 3.0) << degrees(estimate.bearing);
 }
 
+// Delay-and-sum towards the source lines the channels up: the steered signal is the source
+// (delayed by the common 20 samples), while steering the other way smears high frequencies.
+TEST(Direction, SteeringTowardsASourceLinesItsChannelsUp) {
+  const auto mics = circular_array(4, 0.08);
+  const Signal source = white_noise(0.5, -20, 7);
+  for (const double deg : {0.0, 30.0, 135.0, -100.0}) {
+    const AudioBlock heard = far_field(source, radians(deg), mics);
+    const Signal towards = steer_towards(heard, mics, radians(deg));
+    const Signal away = steer_towards(heard, mics, radians(deg + 180));
+    ASSERT_EQ(towards.samples.size(), heard.frames());
+    const auto reference = delayed(source.samples, 20.0);
+    double error = 0, energy = 0;
+    for (std::size_t i = 100; i + 100 < reference.size(); ++i) {
+      const double e = towards.samples[i] - reference[i];
+      error += e * e;
+      energy += static_cast<double>(reference[i]) * reference[i];
+    }
+    EXPECT_LT(error / energy, 0.01) << deg << " degrees: the aligned sum is the source";  // within 20 dB
+    EXPECT_GT(rms(towards.samples), 1.3 * rms(away.samples)) << deg << " degrees";
+  }
+  // Nothing to steer, and audio that does not fit the array.
+  AudioBlock empty;
+  empty.format = {kSpeechRate, 4};
+  EXPECT_TRUE(steer_towards(empty, mics, 0).samples.empty());
+  AudioBlock three;
+  three.format = {kSpeechRate, 3};
+  three.samples.assign(3 * 160, 0);
+  EXPECT_THROW(steer_towards(three, mics, 0), AudioError);
+}
+
 TEST(Direction, RefusesAudioThatDoesNotMatchTheArray) {
   const auto mics = circular_array(4, 0.05);
   AudioBlock three;

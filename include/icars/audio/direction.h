@@ -38,6 +38,13 @@ struct DirectionEstimate {
 DirectionEstimate estimate_direction(const AudioBlock& audio, const std::vector<MicPosition>& mics,
                                      double resolution_deg = 1.0);
 
+// Delay-and-sum beamforming: every channel delayed (fractionally, in the frequency domain) so
+// that a far-field sound from `bearing` (radians, as DirectionEstimate's) lines up across the
+// array, then averaged into one channel at the array's centre. Sound from that direction adds
+// up in phase; noise and reverberation from elsewhere partly cancel. One channel per entry of
+// `mics` (AudioError otherwise); no frames give an empty signal.
+Signal steer_towards(const AudioBlock& audio, const std::vector<MicPosition>& mics, double bearing);
+
 // The delay of `b` relative to `a` in seconds by GCC-PHAT over the whole signals (positive:
 // the sound reached `a` first), searched within +-max_delay seconds and interpolated to about
 // a hundredth of a sample. AudioError for an empty signal.
