@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "child_process.h"
+#include "test_directory.h"
 #include "device.planet.h"
 #include "home.planet.h"
 #include "icars/device/device_manager.h"
@@ -77,11 +78,6 @@ class Registry final : public df::DeviceRegistryServant {
 class DeviceManagerState : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("icars_dm_state_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
     state_ = dir_ / "devices.state.json";
     server_.adapter().add(std::string(icars::device::kRegistryPath), registry_);
     port_ = server_.listen("127.0.0.1", 0);
@@ -89,7 +85,6 @@ class DeviceManagerState : public ::testing::Test {
                     std::chrono::system_clock::now().time_since_epoch())
                     .count();
   }
-  void TearDown() override { fs::remove_all(dir_); }
 
   // The manager with its stderr in `log`; its stdout read by the test.
   std::unique_ptr<planet_test::ChildProcess> start_manager(const fs::path& state,
@@ -113,7 +108,7 @@ class DeviceManagerState : public ::testing::Test {
     return Prx(server_, registry_->link(device), "/devices/" + device + "/" + name);
   }
 
-  fs::path dir_;
+  planet_test::TestDirectory dir_{"icars_dm_state"};
   fs::path state_;
   std::shared_ptr<Registry> registry_ = std::make_shared<Registry>();
   p::Communicator server_;

@@ -21,6 +21,7 @@
 
 #include "child_process.h"
 #include "scoped_subscription.h"
+#include "test_directory.h"
 #include "icars/audio/pcm.h"
 #include "icars/audio/wav.h"
 #include "icars/clock/sim_clock.h"
@@ -57,13 +58,7 @@ std::string speak_to_wav(const fs::path& dir, const std::string& name, const std
 
 class VoicePath : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("icars_voice_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
-    port_ = server_.listen("127.0.0.1", 0);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
+  void SetUp() override { port_ = server_.listen("127.0.0.1", 0); }
 
   // The microphone (on `source`) and the speech engine, served by a device manager.
   void start_devices(std::unique_ptr<audio::AudioSource> source, const std::string& spec) {
@@ -101,7 +96,7 @@ class VoicePath : public ::testing::Test {
     return recognized_.size() + unrecognized_.size();
   }
 
-  fs::path dir_;
+  planet_test::TestDirectory dir_{"icars_voice"};
   SimClock clock_{at_time(0, 18, 0)};
   p::Communicator server_;
   ServiceFramework sf_{server_, adaptors(), {}, {composer()}};
@@ -118,7 +113,7 @@ class VoicePath : public ::testing::Test {
 };
 
 TEST_F(VoicePath, ARecordedSentenceThroughTheMicrophonesDeviceCodeIsRecognized) {
-  const auto wav = speak_to_wav(dir_, "tv_on", "turn on the TV");
+  const auto wav = speak_to_wav(dir_.path(), "tv_on", "turn on the TV");
   start_devices(audio::open_source("wav:" + wav), "wav:" + wav);
   mic_->start();
   ASSERT_TRUE(planet_test::wait_until([&] { return answers() >= 1; }, 60s));
@@ -134,7 +129,7 @@ TEST_F(VoicePath, ARecordedSentenceThroughTheMicrophonesDeviceCodeIsRecognized) 
 }
 
 TEST_F(VoicePath, AnUnknownSentenceIsHeardAsUnrecognizedSpeech) {
-  const auto wav = speak_to_wav(dir_, "weather", "what will the weather be like tomorrow");
+  const auto wav = speak_to_wav(dir_.path(), "weather", "what will the weather be like tomorrow");
   start_devices(audio::open_source("wav:" + wav), "wav:" + wav);
   mic_->start();
   ASSERT_TRUE(planet_test::wait_until([&] { return answers() >= 1; }, 60s));
@@ -147,7 +142,7 @@ TEST_F(VoicePath, AnUnknownSentenceIsHeardAsUnrecognizedSpeech) {
 
 TEST_F(VoicePath, ClippedAudioAndAnotherSampleRateAreStillHeard) {
   // 44.1 kHz, amplified until a good part of it clips.
-  const auto wav = speak_to_wav(dir_, "loud", "play music", 44100, "vol 40");
+  const auto wav = speak_to_wav(dir_.path(), "loud", "play music", 44100, "vol 40");
   start_devices(audio::open_source("wav:" + wav), "wav:" + wav);
   EXPECT_EQ(sound_->info()->sample_rate, 44100);
   std::promise<SoundEvent> sound;
@@ -172,7 +167,7 @@ TEST_F(VoicePath, ClippedAudioAndAnotherSampleRateAreStillHeard) {
 // A pipe that stops in the middle of a sentence: what was heard is published as an interrupted
 // sound and answered, the capture is reported broken, and nothing waits for the rest.
 TEST_F(VoicePath, AStreamThatStopsMidSentenceIsAnsweredAndReported) {
-  const auto wav = audio::read_wav(speak_to_wav(dir_, "cut", "turn off the TV"));
+  const auto wav = audio::read_wav(speak_to_wav(dir_.path(), "cut", "turn off the TV"));
   const auto fifo = dir_ / "mic.fifo";
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   std::thread writer([&] {

@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "child_process.h"
+#include "test_directory.h"
 #include "icars/audio/audio_stream.h"
 #include "icars/audio/pcm.h"
 #include "icars/audio/synthesizer.h"
@@ -463,15 +464,7 @@ class KeptHouse {
 
 class SimStateFileTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("icars_state_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::remove_all(dir_);
-    std::filesystem::create_directories(dir_);
-    file_ = dir_ / "house.state.json";
-  }
-  void TearDown() override { std::filesystem::remove_all(dir_); }
+  void SetUp() override { file_ = dir_ / "house.state.json"; }
 
   static std::string read(const std::filesystem::path& path) {
     std::ifstream in(path, std::ios::binary);
@@ -482,7 +475,7 @@ class SimStateFileTest : public ::testing::Test {
   }
   nlohmann::json on_disk() const { return nlohmann::json::parse(read(file_)); }
 
-  std::filesystem::path dir_;
+  planet_test::TestDirectory dir_{"icars_state"};
   std::filesystem::path file_;
   const Time t18_ = at_time(0, 18, 0);
 };
