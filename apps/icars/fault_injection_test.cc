@@ -371,7 +371,10 @@ TEST(IcarsFaults, EveryVoiceCommandIsHeardAcrossAFifteenSecondStop) {
     // fault in Standby) is decoded as free speech ("volume of"); the first, before the fault,
     // is the phrase.
     ASSERT_EQ(heard.size(), said.size()) << "every sentence heard once, in order:\n" << records;
-    EXPECT_EQ(heard.front(), said.front()) << records;
+    // The first, said before the fault, is decoded against the phrases: the phrase, or not
+    // recognized (the recognizer misses about one command in eight in this room: docs/speech.md),
+    // never free speech or another command.
+    EXPECT_TRUE(heard.front() == said.front() || heard.front() == "?") << records;
     EXPECT_GE(o.registrations, 2u) << "the link was dropped and the devices registered again";
   }
 }
