@@ -308,16 +308,20 @@ TEST(IcarsRun, ExternalMqttHouseThroughTheBridgeProgram) {
   }
   EXPECT_EQ(online, (std::set<std::string>{"living_light", "bedroom_light", "sofa_sensor", "bed_sensor"}));
   bool summary = false;
-  while (auto line = mediator.read_line(std::chrono::seconds(180))) summary |= line->starts_with("=== summary");
+  std::string output;
+  while (auto line = mediator.read_line(std::chrono::seconds(180))) {
+    summary |= line->starts_with("=== summary");
+    output += *line + "\n";
+  }
   const int status = mediator.wait();
-  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
-  EXPECT_TRUE(summary);
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status << "\n" << output;
+  EXPECT_TRUE(summary) << output;
   const auto t = icars_test::read_json_lines(trace_file);
   std::remove(trace_file.c_str());
   const auto n = t.size();
   // Observation senses only the occupancy sensors, here MQTT devices: RestMode on TimeToRest
   // means the sofa's occupancy came through the broker and the bridge.
   const auto rest = find(t, 0, transition_to("RestMode"));
-  ASSERT_LT(rest, n) << "the sofa's occupancy did not come through the broker";
+  ASSERT_LT(rest, n) << "the sofa's occupancy did not come through the broker; icars run said:\n" << output;
   EXPECT_EQ(str(t[rest], "event"), "TimeToRest");
 }

@@ -11,6 +11,8 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <map>
+#include <memory>
 #include <numbers>
 #include <set>
 
@@ -46,8 +48,11 @@ std::optional<int> number_in(const std::string& text) {
 
 // Propagates the events of every sensor service of a type (optionally in one room): those in
 // the container at entry, available or not (an adaptor's events flow again when its device
-// comes back), and those added while it runs. It never fails for lack of sensors: a house whose
-// device manager is still starting gets its sensors when they register.
+// comes back), and those added while it runs, among them a device that registered again under
+// its id (a new service object). It never fails for lack of sensors: a house whose device
+// manager is still starting gets its sensors when they register. With report_current, an
+// occupancy sensor's state is reported once it can be read: at entry, or when it registers or
+// becomes available later.
 class Sense final : public Behavior {
  public:
   explicit Sense(const Params& p)
@@ -57,40 +62,50 @@ class Sense final : public Behavior {
  protected:
   void entry() override {
     bound_.clear();
+    // The watch before the search: a sensor registering in between is then seen by one of them
+    // (or both: bind_once binds it once), never by neither.
+    auto changed = guard([this](std::shared_ptr<s::Service> service, s::ServiceChange change) {
+      if (!matches(*service)) return;
+      if (change == s::ServiceChange::added) bind_once(service);
+      if (change == s::ServiceChange::available) report_once(service);
+    });
+    const auto watch = services().watch([changed](const std::shared_ptr<s::Service>& service, const s::ServiceChange& change) mutable {
+      changed(service, change);
+    });
+    on_release([this, watch] { services().remove_watcher(watch); });
     auto query = of_type(type_);
     if (!room_.empty()) query.in_room(room_);
     for (const auto& sensor : services().find(query)) bind_once(sensor);
     if (bound_.empty()) note(fmt::format("waiting for a {} service", type_));
-    auto added = guard([this](std::shared_ptr<s::Service> service) {
-      if (service->type() == type_ && (room_.empty() || service->attributes().room == room_)) bind_once(service);
-    });
-    const auto watch = services().watch([added](const std::shared_ptr<s::Service>& service, const s::ServiceChange& change) mutable {
-      if (change == s::ServiceChange::added) added(service);
-    });
-    on_release([this, watch] { services().remove_watcher(watch); });
   }
 
  private:
+  struct Bound {
+    std::weak_ptr<s::Service> service;
+    bool reported = false;
+  };
+  bool matches(const s::Service& service) const {
+    return service.type() == type_ && (room_.empty() || service.attributes().room == room_);
+  }
   // Only its sensors' events are passed on: its siblings' events reach it too, and passing those
   // on would bounce them between two Sense siblings for ever.
   template <class S>
   void sense(const std::shared_ptr<S>& sensor) {
     listen(sensor, [this](const Event& e) { propagate(e); });
   }
+  // Binds `sensor` unless this very object is bound already; a new object under a bound id (its
+  // device registered again after it was removed) replaces the old one.
   void bind_once(const std::shared_ptr<s::Service>& sensor) {
-    if (bound_.contains(sensor->id())) return;
+    if (const auto it = bound_.find(sensor->id()); it != bound_.end() && it->second.service.lock() == sensor) return;
     if (bind(sensor)) {
-      bound_.insert(sensor->id());
+      bound_[sensor->id()] = Bound{sensor, false};
+      report_once(sensor);
     } else {
       note(fmt::format("cannot sense {}: {} publishes no events it knows", sensor->id(), sensor->type()));
     }
   }
   bool bind(const std::shared_ptr<s::Service>& sensor) {
-    if (auto o = std::dynamic_pointer_cast<OccupancyService>(sensor)) {
-      sense(o);
-      if (report_current_ && o->available()) report_occupancy(o);
-      return true;
-    }
+    if (auto o = std::dynamic_pointer_cast<OccupancyService>(sensor)) return sense(o), true;
     if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return sense(m), true;
     if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) {
       // What the policy's rules listen for is what the recognizer should hear.
@@ -108,6 +123,17 @@ class Sense final : public Behavior {
     if (auto u = std::dynamic_pointer_cast<UserLocator>(sensor)) return sense(u), true;
     if (auto ms = std::dynamic_pointer_cast<MeasurementService>(sensor)) return sense(ms), true;
     return false;
+  }
+  // With report_current: an occupancy sensor's state, once per bound object, as soon as it is
+  // available (a sensor added while its device is still binding is read when it is).
+  void report_once(const std::shared_ptr<s::Service>& sensor) {
+    if (!report_current_) return;
+    const auto it = bound_.find(sensor->id());
+    if (it == bound_.end() || it->second.reported || it->second.service.lock() != sensor) return;
+    auto o = std::dynamic_pointer_cast<OccupancyService>(sensor);
+    if (!o || !o->available()) return;
+    it->second.reported = true;
+    report_occupancy(o);
   }
   // The state now, as the sensor would have reported it when it last changed.
   void report_occupancy(const std::shared_ptr<OccupancyService>& sensor) {
@@ -131,7 +157,7 @@ class Sense final : public Behavior {
   std::string room_;
   bool report_current_;
   std::vector<std::string> phrases_;
-  std::set<std::string> bound_;
+  std::map<std::string, Bound> bound_;  // by service id
 };
 
 // --- Navigation helpers ---------------------------------------------------------------------------
