@@ -109,12 +109,7 @@ class Sense final : public Behavior {
     if (auto m = std::dynamic_pointer_cast<MotionSensorService>(sensor)) return sense(m), true;
     if (auto sp = std::dynamic_pointer_cast<SpeechSensor>(sensor)) {
       // What the policy's rules listen for is what the recognizer should hear.
-      if (!phrases_.empty()) {
-        sp->want_phrases(this, phrases_);
-        on_release([weak = std::weak_ptr<SpeechSensor>(sp), key = static_cast<const void*>(this)] {
-          if (auto s = weak.lock()) s->drop_phrases(key);
-        });
-      }
+      if (!phrases_.empty()) on_release(sp->hold_phrases(this, phrases_));
       return sense(sp), true;
     }
     if (auto so = std::dynamic_pointer_cast<SoundSensor>(sensor)) return sense(so), true;

@@ -59,6 +59,13 @@ void SpeechSensor::drop_phrases(const void* listener) {
   wanted_.erase(listener);
 }
 
+std::function<void()> SpeechSensor::hold_phrases(const void* listener, std::vector<std::string> phrases) {
+  want_phrases(listener, std::move(phrases));
+  return [weak = std::weak_ptr<SpeechSensor>(std::static_pointer_cast<SpeechSensor>(shared_from_this())), listener] {
+    if (auto s = weak.lock()) s->drop_phrases(listener);
+  };
+}
+
 std::vector<std::string> SpeechSensor::phrases() const {
   std::lock_guard lock(mutex_);
   std::set<std::string> all;

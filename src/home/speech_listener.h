@@ -20,10 +20,7 @@ class SpeechListener : public behavior::Behavior {
     if (sensors.empty()) throw behavior::BehaviorError("no available SpeechSensor service");
     for (const auto& found : sensors) {
       auto sensor = std::static_pointer_cast<SpeechSensor>(found);
-      sensor->want_phrases(this, phrases);
-      on_release([weak = std::weak_ptr<SpeechSensor>(sensor), key = static_cast<const void*>(this)] {
-        if (auto s = weak.lock()) s->drop_phrases(key);
-      });
+      on_release(sensor->hold_phrases(this, phrases));
       listen(sensor);
     }
   }

@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -59,6 +60,9 @@ class SpeechSensor final : public service::Service {
   // can act on and reports anything else as UnrecognizedSpeech. With none, free speech.
   void want_phrases(const void* listener, std::vector<std::string> phrases);
   void drop_phrases(const void* listener);
+  // want_phrases, and the call that drops them again (harmless once this sensor is gone): what a
+  // behavior hands to on_release.
+  std::function<void()> hold_phrases(const void* listener, std::vector<std::string> phrases);
   std::vector<std::string> phrases() const;  // the union, sorted
 
   std::uint64_t recognized() const { return recognized_.load(); }
