@@ -249,6 +249,52 @@ TEST_F(SF, SpeechHeardWhileTheRecognizerIsAwayIsRecognizedInOrderWhenItIsBack) {
   EXPECT_GE(speech->retried(), 3u);
 }
 
+// The speech engine stays connected but refuses the first calls (overloaded, as an engine busy
+// with other decodes): the sentence is recognized by a later retry although nothing else
+// happens (no other sound, no reconnection) that would trigger one.
+TEST_F(SF, ASentenceTheConnectedRecognizerRefusesAtFirstIsRecognizedByALaterRetry) {
+  class BusyRecognizer final : public home::SpeechRecognizerServant {
+   public:
+    home::Recognition recognize(const p::Binary& audio, std::int32_t rate, std::int32_t channels,
+                                const std::vector<std::string>& phrases, const p::Current& c) override {
+      if (calls_++ < 3) throw p::Error(p::ErrorKind::overloaded, "busy with other decodes");
+      return inner_.recognize(audio, rate, channels, phrases, c);
+    }
+    int calls() const { return calls_.load(); }
+
+   private:
+    std::atomic<int> calls_{0};
+    FakeRecognizer inner_;
+  };
+  p::Communicator side;
+  device::DeviceManager manager(side);
+  auto mic = std::make_shared<FakeMicrophone>(side);
+  auto robot_mic = std::make_shared<device::Device>("robot1_mic", "Microphone", "", "robot1");
+  robot_mic->add("sound_sensor", mic);
+  auto busy = std::make_shared<BusyRecognizer>();
+  auto engine = std::make_shared<device::Device>("speech_engine", "SpeechEngine");
+  engine->add("speech_recognizer", busy);
+  manager.add(robot_mic);
+  manager.add(engine);
+  manager.connect("127.0.0.1", port_);
+  ASSERT_TRUE(manager.wait_registered(1, 20s));
+  std::shared_ptr<SpeechSensor> speech;
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    speech = container_.find_first<SpeechSensor>(ServiceQuery::of_type("SpeechSensor").available());
+    return speech != nullptr;
+  }));
+  std::promise<std::string> heard;
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) { heard.set_value(e.text); });
+  ASSERT_TRUE(planet_test::wait_until([&] { return mic->subscribers() == 1; }));
+  mic->hear("channel 5");
+  auto future = heard.get_future();
+  ASSERT_EQ(future.wait_for(60s), std::future_status::ready)
+      << busy->calls() << " calls, " << speech->waiting() << " waiting, " << speech->rejected() << " rejected";
+  EXPECT_EQ(future.get(), "channel 5");
+  EXPECT_EQ(busy->calls(), 4);
+  EXPECT_EQ(speech->rejected(), 0u);
+}
+
 TEST_F(SF, ServicesFollowTheirDevicesConnection) {
   auto devices = std::make_unique<DeviceSide>(port_);
   ASSERT_TRUE(devices->manager.wait_registered(1, 20s));

@@ -1,6 +1,7 @@
 #include "icars/home/services.h"
 
 #include <asio/post.hpp>
+#include <fmt/format.h>
 
 #include <set>
 
@@ -101,14 +102,13 @@ void SpeechSensor::recognize(Heard h) {
           } catch (const std::exception& e) {
             unrecognized.reason = e.what();
           }
-          const auto seq = h.seq;
           if (!unreachable) {
             ++self->rejected_;
-            self->settle(seq, Outcome{std::nullopt, std::move(unrecognized)});
-          } else if (!self->wait_for_recognizer(std::move(h))) {
-            ++self->rejected_;
-            self->settle(seq, Outcome{});
+            self->settle(h.seq, Outcome{std::nullopt, std::move(unrecognized)});
+            return;
           }
+          h.last_error = unrecognized.reason;
+          self->wait_for_recognizer(std::move(h));
           return;
         }
         h.speech.text = std::move(result.text);
@@ -121,7 +121,10 @@ void SpeechSensor::recognize(Heard h) {
 }
 
 bool SpeechSensor::wait_for_recognizer(Heard h) {
-  if (std::chrono::steady_clock::now() - h.at > kMaxWait) return false;
+  if (std::chrono::steady_clock::now() - h.at > kMaxWait) {
+    give_up(std::move(h), fmt::format("the recognizer could not be reached for {} s", kMaxWait.count()));
+    return false;
+  }
   // The recognizer may be back already (its watcher fired before this failure came): once.
   if (!h.retried_at_once && recognizer_->available()) {
     h.retried_at_once = true;
@@ -129,10 +132,50 @@ bool SpeechSensor::wait_for_recognizer(Heard h) {
     recognize(std::move(h));
     return true;
   }
-  std::lock_guard lock(mutex_);
-  if (waiting_.size() >= kMaxWaiting) return false;
-  waiting_.push_back(std::move(h));
+  bool kept = false;
+  {
+    std::lock_guard lock(mutex_);
+    if (waiting_.size() < kMaxWaiting) {
+      waiting_.push_back(std::move(h));
+      kept = true;
+    }
+  }
+  if (!kept) {
+    give_up(std::move(h), fmt::format("{} sounds already wait for the recognizer", kMaxWaiting));
+    return false;
+  }
+  // Still connected (a call that timed out, an engine overloaded): nothing else may come to
+  // retry it (no new sound, no reconnection), so a timer does.
+  if (recognizer_->available()) retry_later();
   return true;
+}
+
+void SpeechSensor::give_up(Heard h, const std::string& why) {
+  ++rejected_;
+  UnrecognizedSpeech unrecognized{"", "", h.speech.room, h.speech.device, h.speech.time_ms};
+  unrecognized.reason = h.last_error.empty() ? why : why + ": " + h.last_error;
+  settle(h.seq, Outcome{std::nullopt, std::move(unrecognized)});
+}
+
+void SpeechSensor::retry_later() {
+  std::shared_ptr<asio::steady_timer> timer;
+  try {
+    std::lock_guard lock(mutex_);
+    if (retry_timer_ || waiting_.empty()) return;
+    retry_timer_ = std::make_shared<asio::steady_timer>(recognizer_->proxy().communicator().io(), kRetryAfter);
+    timer = retry_timer_;
+  } catch (const planet::Error&) {
+    return;  // unbound after all: its return retries (update_availability)
+  }
+  timer->async_wait([weak = weak_from_this(), timer](std::error_code ec) {
+    auto self = std::static_pointer_cast<SpeechSensor>(weak.lock());
+    if (!self || ec) return;
+    {
+      std::lock_guard lock(self->mutex_);
+      if (self->retry_timer_ == timer) self->retry_timer_.reset();
+    }
+    self->retry_waiting();
+  });
 }
 
 std::size_t SpeechSensor::waiting() const {
@@ -148,8 +191,7 @@ void SpeechSensor::retry_waiting() {
   }
   for (auto& h : again) {
     if (std::chrono::steady_clock::now() - h.at > kMaxWait) {
-      ++rejected_;
-      settle(h.seq, Outcome{});
+      give_up(std::move(h), fmt::format("the recognizer could not be reached for {} s", kMaxWait.count()));
       continue;
     }
     ++retried_;

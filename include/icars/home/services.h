@@ -15,6 +15,7 @@
 // soon as their parts are in the container and keep them across the parts' reconnections.
 #pragma once
 
+#include <asio/steady_timer.hpp>
 #include <asio/thread_pool.hpp>
 #include <chrono>
 #include <cstdint>
@@ -71,11 +72,14 @@ class SpeechSensor final : public service::Service {
   std::size_t waiting() const;  // sounds waiting for the recognizer to be reachable again
 
   // Speech is delivered in the order it was heard. Sounds whose recognition failed because the
-  // recognizer could not be reached (its link dropped) are kept, at most kMaxWaiting for at
-  // most kMaxWait, and recognized again when it is reachable again; what was heard after them
-  // waits for them. Past those bounds a sound counts as rejected.
+  // recognizer could not be reached (its link dropped, a call timed out, it was overloaded) are
+  // kept, at most kMaxWaiting for at most kMaxWait, and recognized again when it is reachable
+  // again, or every kRetryAfter while it stays connected; what was heard after them waits for
+  // them. Past those bounds a sound is rejected: listeners get an UnrecognizedSpeech saying why,
+  // so no sound is lost without a word.
   static constexpr std::size_t kMaxWaiting = 64;
   static constexpr std::chrono::seconds kMaxWait{120};
+  static constexpr std::chrono::seconds kRetryAfter{2};
 
  private:
   struct Heard {
@@ -86,6 +90,7 @@ class SpeechSensor final : public service::Service {
     SpeechEvent speech;
     std::chrono::steady_clock::time_point at;
     bool retried_at_once = false;
+    std::string last_error;  // why the recognizer could not be reached, last time
   };
   struct Outcome {
     std::optional<SpeechEvent> speech;
@@ -98,6 +103,10 @@ class SpeechSensor final : public service::Service {
   // Keeps `h` for the recognizer's return; false when it is too old or too many wait.
   bool wait_for_recognizer(Heard h);
   void retry_waiting();
+  // Retries the waiting sounds after kRetryAfter unless a retry is due already.
+  void retry_later();
+  // Rejects `h`: an UnrecognizedSpeech saying why (`why` and the last error).
+  void give_up(Heard h, const std::string& why);
   // Records the outcome of sound `seq` (neither: rejected, nothing to tell) and delivers what
   // is in order.
   void settle(std::uint64_t seq, Outcome outcome);
@@ -118,6 +127,7 @@ class SpeechSensor final : public service::Service {
   std::uint64_t deliver_seq_ = 0;  // the next to deliver
   std::map<std::uint64_t, Outcome> settled_;  // out of order so far
   std::deque<Heard> waiting_;
+  std::shared_ptr<asio::steady_timer> retry_timer_;  // armed: a retry of waiting_ is due
   std::map<const void*, std::vector<std::string>> wanted_;
   std::uint64_t next_subscription_ = 0;
   std::map<std::uint64_t, std::pair<std::uint64_t, std::uint64_t>> subscriptions_;
