@@ -78,7 +78,16 @@ void SpeechSensor::recognize(Heard h) {
   auto audio = h.audio;
   const int rate = h.sample_rate;
   const int channels = h.channels;
-  recognizer_->proxy().recognize_async(
+  // Decoding takes time in proportion to the sound (two decodes of up to 10 s of audio on a
+  // busy machine): the call may take longer than a command. A recognizer that is gone is told
+  // by its link, not by this deadline.
+  auto proxy = recognizer_->proxy();
+  const double seconds = rate > 0 && channels > 0
+                             ? static_cast<double>(audio.bytes.size()) / (2.0 * rate * channels)
+                             : 0.0;
+  const auto deadline = std::chrono::milliseconds(10000 + static_cast<std::int64_t>(seconds * 4000));
+  if (deadline > proxy.timeout()) proxy.set_timeout(deadline);
+  proxy.recognize_async(
       audio, rate, channels, phrases(),
       [weak = weak_from_this(), h = std::move(h)](std::exception_ptr error, home::Recognition result) mutable {
         auto self = std::static_pointer_cast<SpeechSensor>(weak.lock());
