@@ -5,6 +5,7 @@
 //
 //   speech_bench [--runs 3] [--voices en-us,en-us+f3,en] [--distances 1,2,4,6] [--noise 30,50]
 //                [--rt60 0.4] [--min-confidence 0.3] [--vad-threshold-db 9] [--hangover-ms 400]
+//                [--model-dir DIR]
 //                [--array 4 [--array-radius 0.08] [--bearing 30] [--steer]] [--quick] [--details]
 //
 // The vocabulary is what the paper policy's voice behaviors act on (VoiceTVControl and
@@ -369,6 +370,7 @@ int main(int argc, char** argv) {
   app.add_option("--min-confidence", recognizer_options.min_confidence,
                  "RecognizerOptions::min_confidence")
       ->check(CLI::Range(0.0, 1.0));
+  app.add_option("--model-dir", recognizer_options.model_dir, "RecognizerOptions::model_dir");
   app.add_option("--vad-threshold-db", vad.threshold_db, "VadOptions::threshold_db")
       ->check(CLI::Range(0.0, 40.0));
   app.add_option("--hangover-ms", vad.hangover_ms, "VadOptions::hangover_ms")

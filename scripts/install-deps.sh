@@ -27,6 +27,9 @@ packages=(
   # microphone, sox makes and inspects test recordings
   libespeak-ng-dev espeak-ng libpocketsphinx-dev libsphinxbase-dev pocketsphinx-en-us
   libfftw3-dev libsamplerate0-dev libasound2-dev sox
+  # the simulated house's speech model, adapted to its voices at build time (tools/speech-model):
+  # sphinxtrain's bw and map_adapt, sphinx_fe, numpy for the mixture weights
+  sphinxtrain sphinxbase-utils python3-numpy
   # the dashboard's browser tests (tests/browser): node runs them, puppeteer-core drives chromium
   nodejs chromium
 )

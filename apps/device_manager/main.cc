@@ -49,6 +49,11 @@ int main(int argc, char** argv) {
   app.add_option("--speedup", speedup, "simulated seconds per wall-clock second")->check(CLI::PositiveNumber);
   app.add_option("--devices", only, "host only these device ids (default: all)")->delimiter(',');
   app.add_flag("!--no-engines", engines, "do not host the speech and vision engines");
+  std::string speech_model = icars::home::sim_speech_model_dir();
+  app.add_option("--speech-model", speech_model,
+                 "the speech engine's PocketSphinx model directory (with en-us/ and cmudict-en-us.dict); "
+                 "\"stock\": Debian's en-us model; default: the one adapted to the simulated voices "
+                 "(docs/speech.md), when it was built");
   app.add_flag("!--no-simulator", simulator, "do not host the Simulation control device");
   app.add_option("--pun", pun, "this endpoint's PLANET name");
   app.add_option("--effects", effects_file, "write what the devices executed to this file (JSON lines)");
@@ -107,6 +112,7 @@ int main(int argc, char** argv) {
   options.speedup = speedup;
   options.devices = std::set<std::string>(only.begin(), only.end());
   options.engines = engines;
+  options.speech_model_dir = speech_model == "stock" ? std::string() : speech_model;
   options.simulator = simulator;
   options.pun = pun;
   options.tls = security.tls;

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <mutex>
 #include <numbers>
 #include <set>
@@ -782,9 +783,13 @@ SimDeviceTypes make_home_types() {
   types.add("Clock", "the house's clock: clock (home::Clock)", one_capability("clock", [](const sim::DeviceSpec&, SimContext c) {
     return std::make_shared<SimClockDevice>(c.world);
   }));
-  types.add("SpeechEngine", "a speech recognizer: speech_recognizer (home::SpeechRecognizer)",
-            one_capability("speech_recognizer", [](const sim::DeviceSpec&, SimContext) {
-              return std::make_shared<SpeechRecognizerDevice>();
+  types.add("SpeechEngine",
+            "a speech recognizer: speech_recognizer (home::SpeechRecognizer); param model_dir (a PocketSphinx "
+            "model directory; default: the one adapted to the simulated voices, or the stock one)",
+            one_capability("speech_recognizer", [](const sim::DeviceSpec& spec, SimContext) {
+              audio::RecognizerOptions options;
+              options.model_dir = param(spec, "model_dir", sim_speech_model_dir());
+              return std::make_shared<SpeechRecognizerDevice>(options);
             }));
   types.add("VisionEngine", "a face recognizer: face_recognizer (home::FaceRecognizer)",
             one_capability("face_recognizer", [](const sim::DeviceSpec&, SimContext) {
@@ -804,10 +809,16 @@ std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, Sim
   return sim_device_types().make(spec, context);
 }
 
-std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context) {
+std::string sim_speech_model_dir() {
+  const std::filesystem::path adapted = ICARS_SIM_SPEECH_MODEL_DIR;
+  return std::filesystem::exists(adapted / "en-us" / "sendump") ? adapted.string() : std::string();
+}
+
+std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context, const std::string& speech_model_dir) {
   sim::DeviceSpec speech;
   speech.id = std::string(kSpeechEngineId);
   speech.type = "SpeechEngine";
+  speech.params["model_dir"] = speech_model_dir;
   sim::DeviceSpec vision;
   vision.id = std::string(kVisionEngineId);
   vision.type = "VisionEngine";

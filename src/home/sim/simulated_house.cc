@@ -36,7 +36,7 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     }
   }
   if (options_.engines) {
-    for (auto& d : make_sim_engines(context)) manager_->add(d);
+    for (auto& d : make_sim_engines(context, options_.speech_model_dir)) manager_->add(d);
   }
   if (options_.simulator) manager_->add(make_simulator_device(context));
   if (options_.mqtt && !over_mqtt.empty()) {

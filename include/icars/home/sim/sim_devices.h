@@ -112,8 +112,15 @@ std::shared_ptr<device::Device> make_sim_device(const sim::DeviceSpec& spec, Sim
 inline constexpr std::string_view kSpeechEngineId = "speech_engine";
 inline constexpr std::string_view kVisionEngineId = "vision_engine";
 inline constexpr std::string_view kSimulatorId = "simulator";
-// The software devices every simulated house gets: a speech engine and a vision engine.
-std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context);
+// The speech model the simulated house decodes with by default: PocketSphinx's en-us model
+// adapted to the simulation's espeak-ng voices in its room (tools/speech-model/adapt.sh,
+// docs/speech.md), when the build made it; "" (the stock model) otherwise. A real microphone's
+// voices are people's: they keep the stock model.
+std::string sim_speech_model_dir();
+// The software devices every simulated house gets: a speech engine (decoding with the model in
+// `speech_model_dir`, RecognizerOptions::model_dir; "": the stock one) and a vision engine.
+std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context,
+                                                              const std::string& speech_model_dir = sim_speech_model_dir());
 // The pseudo-device "simulator" with its Simulation capability.
 std::shared_ptr<device::Device> make_simulator_device(SimContext context);
 

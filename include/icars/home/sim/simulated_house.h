@@ -31,6 +31,9 @@ struct SimulatedHouseOptions {
   double speedup = 1.0;           // simulated seconds per wall-clock second
   std::set<std::string> devices;  // host only these device ids; empty: all
   bool engines = true;            // host the speech and vision engines
+  // The speech engine's model (RecognizerOptions::model_dir): by default the one adapted to the
+  // simulated voices if it was built; "": the stock one.
+  std::string speech_model_dir = sim_speech_model_dir();
   bool simulator = true;          // host the Simulation control device
   std::string pun;                // the device manager's PLANET name
   planet::TlsOptions tls;         // TLS to the server (docs/security.md)
