@@ -4,11 +4,7 @@
 // sensed, whichever side of the behavior's start they fall on.
 #include <gtest/gtest.h>
 
-#include <unistd.h>
-
 #include <atomic>
-#include <filesystem>
-#include <fstream>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -17,19 +13,14 @@
 #include <vector>
 
 #include "child_process.h"
-#include "icars/clock/wall_clock.h"
 #include "icars/device/device_manager.h"
-#include "icars/home/adaptors.h"
-#include "icars/home/behaviors.h"
-#include "icars/home/services.h"
 #include "icars/planet/publisher.h"
-#include "icars/server/mediating_server.h"
+#include "policy_server.h"
 
 namespace icars::home {
 namespace {
 
 using namespace std::chrono_literals;
-namespace fs = std::filesystem;
 namespace p = icars::planet;
 
 // Sitting down on any sofa moves the statechart; a sofa already occupied when it is sensed
@@ -73,32 +64,12 @@ class FakeSofa final : public OccupancySensorServant {
 
 class SenseTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("icars_sense_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    std::ofstream(dir_ / "sofas.xml") << kPolicy;
-    server::ServerOptions o;
-    o.adaptors = adaptors();
-    o.composers = {composer()};
-    o.behaviors = behavior_registry();
-    o.policy_dir = dir_.string();
-    server_ = std::make_unique<server::MediatingServer>(std::move(o));
-    port_ = server_->listen();
-    server_->use_clock(clock_);
-  }
-  void TearDown() override {
-    server_.reset();
-    fs::remove_all(dir_);
-  }
-  bool resting() { return server_->coordinator() && server_->coordinator()->current() == "Resting"; }
+  bool resting() { return policy_.state() == "Resting"; }
   std::size_t available_sofas() {
-    return server_->container().find(service::ServiceQuery::of_type("OccupancySensor").available()).size();
+    return policy_->container().find(service::ServiceQuery::of_type("OccupancySensor").available()).size();
   }
 
-  fs::path dir_;
-  std::unique_ptr<server::MediatingServer> server_;
-  std::uint16_t port_ = 0;
-  WallClock clock_;
+  home_test::PolicyServer policy_{{{"sofas", kPolicy}}};
 };
 
 TEST_F(SenseTest, ASensorWhoseDeviceRegistersAgainIsStillSensed) {
@@ -108,19 +79,19 @@ TEST_F(SenseTest, ASensorWhoseDeviceRegistersAgainIsStillSensed) {
   auto device = std::make_shared<device::Device>("sofa_sensor", "SofaOccupancy", "living_room");
   device->add("occupancy", sofa);
   manager.add(device);
-  manager.connect("127.0.0.1", port_);
+  manager.connect("127.0.0.1", policy_.port());
   ASSERT_TRUE(planet_test::wait_until([&] { return available_sofas() == 1 && sofa->subscribers() == 1; }, 30s));
-  const auto first = server_->container().find(service::ServiceQuery::of_type("OccupancySensor")).at(0);
-  server_->run_policy("sofas");
-  ASSERT_TRUE(planet_test::wait_until([&] { return server_->coordinator() && server_->coordinator()->current() == "Watching"; }, 30s));
+  const auto first = policy_->container().find(service::ServiceQuery::of_type("OccupancySensor")).at(0);
+  policy_->run_policy("sofas");
+  ASSERT_TRUE(planet_test::wait_until([&] { return policy_.state() == "Watching"; }, 30s));
 
   // The device leaves the server (its service is removed) and registers again: a new service
   // object under the same id, which the running Sense must take up.
   manager.set_online("sofa_sensor", false);
-  ASSERT_TRUE(planet_test::wait_until([&] { return server_->container().find(service::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
+  ASSERT_TRUE(planet_test::wait_until([&] { return policy_->container().find(service::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
   manager.set_online("sofa_sensor", true);
   ASSERT_TRUE(planet_test::wait_until([&] { return available_sofas() == 1 && sofa->subscribers() >= 1; }, 30s));
-  EXPECT_NE(server_->container().find(service::ServiceQuery::of_type("OccupancySensor")).at(0), first);
+  EXPECT_NE(policy_->container().find(service::ServiceQuery::of_type("OccupancySensor")).at(0), first);
 
   // Someone sits down, and gets up and sits again until the policy hears it (the Sense takes up
   // the new service on the runtime, a moment after it is added).
@@ -129,12 +100,12 @@ TEST_F(SenseTest, ASensorWhoseDeviceRegistersAgainIsStillSensed) {
     sofa->set(true);
     return resting();
   }, 30s)) << "the policy did not hear the sofa after its device registered again";
-  server_->stop();
+  policy_->stop();
 }
 
 TEST_F(SenseTest, ASofaOccupiedWhenItsDeviceRegistersLateIsReported) {
-  server_->run_policy("sofas");
-  ASSERT_TRUE(planet_test::wait_until([&] { return server_->coordinator() && server_->coordinator()->current() == "Watching"; }, 30s));
+  policy_->run_policy("sofas");
+  ASSERT_TRUE(planet_test::wait_until([&] { return policy_.state() == "Watching"; }, 30s));
   // The sofa is occupied before its device manager comes, and no event says so afterwards.
   p::Communicator side;
   device::DeviceManager manager(side);
@@ -143,10 +114,10 @@ TEST_F(SenseTest, ASofaOccupiedWhenItsDeviceRegistersLateIsReported) {
   auto device = std::make_shared<device::Device>("sofa_sensor", "SofaOccupancy", "living_room");
   device->add("occupancy", sofa);
   manager.add(device);
-  manager.connect("127.0.0.1", port_);
+  manager.connect("127.0.0.1", policy_.port());
   EXPECT_TRUE(planet_test::wait_until([&] { return resting(); }, 30s))
       << "report_current did not report a sensor that registered while the Sense ran";
-  server_->stop();
+  policy_->stop();
 }
 
 // Sensors register from another process's side while the policy starts, in rounds with the
@@ -158,7 +129,7 @@ TEST_F(SenseTest, EverySensorRegisteringAsThePolicyStartsIsSensed) {
   constexpr int kSofas = 32;
   std::mutex mutex;
   std::set<std::string> read;  // the sofas whose state the Sense read this round
-  server_->trace().add_sink([&](const behavior::TraceRecord& r) {
+  policy_->trace().add_sink([&](const behavior::TraceRecord& r) {
     if (r.kind != "call" || !r.text.ends_with(".occupancy.occupied")) return;
     std::lock_guard lock(mutex);
     read.insert(r.text.substr(r.text.rfind(' ') + 1));
@@ -179,12 +150,12 @@ TEST_F(SenseTest, EverySensorRegisteringAsThePolicyStartsIsSensed) {
       device->add("occupancy", sofas.back());
       manager.add(device, false);
     }
-    manager.connect("127.0.0.1", port_);
+    manager.connect("127.0.0.1", policy_.port());
     std::thread registering([&] {
       std::this_thread::sleep_for(std::chrono::microseconds(round * 300));  // spreads the rounds only
       for (int i = 0; i < kSofas; ++i) manager.set_online("sofa_" + std::to_string(i), true);
     });
-    server_->run_policy("sofas");
+    policy_->run_policy("sofas");
     registering.join();
     ASSERT_TRUE(planet_test::wait_until([&] {
       if (available_sofas() != kSofas) return false;
@@ -204,11 +175,11 @@ TEST_F(SenseTest, EverySensorRegisteringAsThePolicyStartsIsSensed) {
       sat_on.set(true);
       return resting();
     }, 30s)) << "the policy did not hear a sofa that registered as it started";
-    server_->stop_policy(5s);
+    policy_->stop_policy(5s);
     for (int i = 0; i < kSofas; ++i) manager.set_online("sofa_" + std::to_string(i), false);
-    ASSERT_TRUE(planet_test::wait_until([&] { return server_->container().find(service::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
+    ASSERT_TRUE(planet_test::wait_until([&] { return policy_->container().find(service::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
   }
-  server_->stop();
+  policy_->stop();
 }
 
 }  // namespace

@@ -7,29 +7,22 @@
 // rules through a Sense behavior like any other sensor's events.
 #include <gtest/gtest.h>
 
-#include <unistd.h>
-
-#include <filesystem>
-#include <fstream>
+#include <algorithm>
+#include <mutex>
 #include <string>
 #include <vector>
 
 #include "broker.h"
 #include "child_process.h"
 #include "fleet.h"
-#include "icars/clock/wall_clock.h"
-#include "icars/home/adaptors.h"
-#include "icars/home/behaviors.h"
 #include "icars/home/mqtt/entity_devices.h"
-#include "icars/home/services.h"
-#include "icars/server/mediating_server.h"
+#include "policy_server.h"
 
 namespace icars::home::mqtt {
 namespace {
 
 using namespace std::chrono_literals;
 namespace bm = icars::bridge::mqtt;
-namespace fs = std::filesystem;
 
 constexpr const char* kPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
 <policy name="hall_light">
@@ -98,24 +91,6 @@ struct MqttHome {
 
 class MqttPolicy : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("icars_mqtt_policy_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    std::ofstream(dir_ / "hall_light.xml") << kPolicy;
-    std::ofstream(dir_ / "too_warm.xml") << kWarmPolicy;
-    server::ServerOptions o;
-    o.adaptors = adaptors();
-    o.composers = {composer()};
-    o.behaviors = behavior_registry();
-    o.policy_dir = dir_.string();
-    server_ = std::make_unique<server::MediatingServer>(std::move(o));
-    port_ = server_->listen();
-  }
-  void TearDown() override {
-    server_.reset();
-    fs::remove_all(dir_);
-  }
-
   // The transitions the policy took, as the trace says them.
   std::vector<std::string> transitions() {
     std::lock_guard lock(mutex_);
@@ -126,10 +101,7 @@ class MqttPolicy : public ::testing::Test {
     return std::find(all.begin(), all.end(), transition) != all.end();
   }
 
-  fs::path dir_;
-  std::unique_ptr<server::MediatingServer> server_;
-  std::uint16_t port_ = 0;
-  WallClock clock_;
+  home_test::PolicyServer policy_{{{"hall_light", kPolicy}, {"too_warm", kWarmPolicy}}};
   std::mutex mutex_;
   std::vector<std::string> transitions_;
 };
@@ -137,21 +109,20 @@ class MqttPolicy : public ::testing::Test {
 TEST_F(MqttPolicy, MotionOnAnMqttSensorSwitchesAnMqttLampAndAnOfflineLampFailsTheTask) {
   MqttDevicesOptions options;
   options.placements[mqtt_test::Fleet::unique_id("living_lamp")] = Placement{"living_light", "living_room", ""};
-  MqttHome home(port_, options);
+  MqttHome home(policy_.port(), options);
   auto& fleet = home.fleet;
-  auto& c = server_->container();
+  auto& c = policy_->container();
   ASSERT_TRUE(planet_test::wait_until([&] {
     return c.find(service::ServiceQuery::of_type("LightControl").in_room("living_room").available()).size() == 1 &&
            c.find(service::ServiceQuery::of_type("MotionSensor").in_room("hallway").available()).size() == 1;
   }, 30s));
 
-  server_->trace().add_sink([this](const behavior::TraceRecord& r) {
+  policy_->trace().add_sink([this](const behavior::TraceRecord& r) {
     if (r.kind != "transition") return;
     std::lock_guard lock(mutex_);
     transitions_.push_back(r.text);
   });
-  server_->use_clock(clock_);
-  server_->run_policy("hall_light");
+  policy_->run_policy("hall_light");
   // Someone walks through the hall, every 40th look (200 ms): the sensor goes off and on.
   int looks = 0;
   const auto walk_through = [&] {
@@ -177,28 +148,27 @@ TEST_F(MqttPolicy, MotionOnAnMqttSensorSwitchesAnMqttLampAndAnOfflineLampFailsTh
   looks = 0;
   ASSERT_TRUE(planet_test::wait_until([&] {
     walk_through();
-    return server_->coordinator() && server_->coordinator()->current() == "InTrouble";
+    return policy_.state() == "InTrouble";
   }, 60s)) << ::testing::PrintToString(transitions());
   const auto all = transitions();
   ASSERT_FALSE(all.empty());
   EXPECT_NE(all.back().find("Lighting -> InTrouble on failed"), std::string::npos) << all.back();
   EXPECT_NE(all.back().find("no available light"), std::string::npos) << all.back();
-  server_->stop();
+  policy_->stop();
 }
 
 TEST_F(MqttPolicy, ATemperatureFromAnMqttSensorReachesThePolicysRules) {
-  MqttHome home(port_, {});
-  auto& c = server_->container();
+  MqttHome home(policy_.port(), {});
+  auto& c = policy_->container();
   ASSERT_TRUE(planet_test::wait_until([&] {
     return c.find(service::ServiceQuery::of_type("MeasurementSensor").in_room("bedroom").available()).size() == 1;
   }, 30s));
-  server_->trace().add_sink([this](const behavior::TraceRecord& r) {
+  policy_->trace().add_sink([this](const behavior::TraceRecord& r) {
     if (r.kind != "transition") return;
     std::lock_guard lock(mutex_);
     transitions_.push_back(r.text);
   });
-  server_->use_clock(clock_);
-  server_->run_policy("too_warm");
+  policy_->run_policy("too_warm");
   // The room warms up, a quarter degree every 200 ms (the Sense behavior subscribes as the
   // policy starts, so a change before that is not heard).
   int looks = 0;
@@ -208,7 +178,7 @@ TEST_F(MqttPolicy, ATemperatureFromAnMqttSensorReachesThePolicysRules) {
     return took("Watching -> Cooling on TooWarm");
   }, 60s)) << ::testing::PrintToString(transitions());
   EXPECT_GT(temperature, 25.0) << "moved before the temperature was above 25";
-  server_->stop();
+  policy_->stop();
 }
 
 }  // namespace
