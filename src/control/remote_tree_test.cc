@@ -1,0 +1,181 @@
+// Behavior subtrees on another server (idl/behavior.idl, remote_tree.h): two servers in one
+// process, each with its own communicator, runtime, services and trace, over loopback TCP. A
+// subtree placed on server B stays part of server A's tree: its events reach its parent and
+// siblings on A, its siblings' events reach it on B, it completes its node, halting the node
+// halts it, and a host that goes away fails the node with the reason.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "child_process.h"
+#include "icars/behavior/composite.h"
+#include "icars/behavior/registry.h"
+#include "icars/clock/wall_clock.h"
+#include "icars/control/remote_tree.h"
+#include "icars/control/tree_builder.h"
+
+namespace icars::control {
+namespace {
+
+using namespace std::chrono_literals;
+namespace b = icars::behavior;
+namespace p = icars::planet;
+
+// One server's side: what its behaviors run on.
+struct Side {
+  Side() : runtime(clock), env{runtime, services, trace} {
+    b::register_generic_behaviors(registry);
+    trace.add_sink([this](const b::TraceRecord& r) {
+      std::lock_guard lock(mutex);
+      records.push_back(r.source + ": " + r.text);
+    });
+  }
+  bool recorded(const std::string& text) {
+    std::lock_guard lock(mutex);
+    for (const auto& r : records) {
+      if (r.find(text) != std::string::npos) return true;
+    }
+    return false;
+  }
+  // Gone in the reverse order: the communicator's io thread first, then the runtime's thread,
+  // then what their handlers use.
+  std::mutex mutex;
+  std::vector<std::string> records;
+  WallClock clock;
+  service::ServiceContainer services;
+  b::Trace trace;
+  b::Runtime runtime;
+  b::Environment env;
+  b::BehaviorRegistry registry;
+  p::Communicator communicator;
+};
+
+// The owner of a tree's root on server A: what reaches the top, and how the tree ended.
+class Top final : public b::Owner {
+ public:
+  void child_event(b::Behavior&, const b::Event& e) override {
+    std::lock_guard lock(mutex_);
+    events_.push_back(e.type());
+  }
+  void child_done(b::Behavior& root) override {
+    std::lock_guard lock(mutex_);
+    done_ = std::string(b::to_string(root.status())) + (root.failure_reason().empty() ? "" : ": " + root.failure_reason());
+  }
+  std::vector<std::string> events() {
+    std::lock_guard lock(mutex_);
+    return events_;
+  }
+  std::string done() {
+    std::lock_guard lock(mutex_);
+    return done_;
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::string> events_;
+  std::string done_;
+};
+
+class RemoteTree : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    host_ = std::make_shared<SubtreeHost>(b_->env, b_->registry, b_->communicator);
+    b_->communicator.adapter().add(std::string(kBehaviorHostPath), host_);
+    const auto port = b_->communicator.listen("127.0.0.1", 0);
+    hosts_ = std::make_unique<RemoteHosts>(a_.communicator);
+    hosts_->add("B", "127.0.0.1", port);
+    ASSERT_TRUE(hosts_->wait_connected("B", 20s));
+  }
+  void TearDown() override {
+    if (root_) a_.runtime.run([this] { root_.reset(); });
+    hosts_.reset();
+  }
+  // Starts `root` on A's runtime, owned by top_.
+  void start(std::unique_ptr<b::Behavior> root) {
+    root_ = std::move(root);
+    a_.runtime.run([this] {
+      root_->attach(a_.env, top_, "");
+      root_->start();
+    });
+  }
+  std::unique_ptr<b::Behavior> local(const std::string& xml) { return build_tree(parse_subtree(xml, a_.registry), a_.registry); }
+
+  Side a_;
+  std::unique_ptr<Side> b_ = std::make_unique<Side>();
+  std::shared_ptr<SubtreeHost> host_;
+  std::unique_ptr<RemoteHosts> hosts_;
+  Top top_;
+  std::unique_ptr<b::Behavior> root_;
+};
+
+TEST_F(RemoteTree, ASubtreeOnAnotherServerIsPartOfTheTree) {
+  // A's Near says Pong at once; B's Far, beside it, answers Pong with Pang; A's Echo, beside both,
+  // answers Pang with Echoed. (A <when> hears its siblings; docs/policy.md, "What reaches a node".)
+  auto all = std::make_unique<b::ConcurrentBehavior>(b::Completion::all);
+  all->set_identity("concurrent", "Both");
+  all->add_child(local(R"(<sequential name="Near"><behavior type="Emit" event="Pong"/></sequential>)"));
+  all->add_child(hosts_->make("B", "Far",
+                              R"(<when name="Far" event="Pong" times="1"><behavior type="Emit" event="Pang"/></when>)"));
+  all->add_child(local(R"(<when name="Echo" event="Pang" times="1"><behavior type="Emit" event="Echoed"/></when>)"));
+  start(std::move(all));
+
+  ASSERT_TRUE(planet_test::wait_until([&] { return !top_.done().empty(); }, 30s))
+      << ::testing::PrintToString(top_.events()) << "\nA: " << ::testing::PrintToString(a_.records)
+      << "\nB: " << ::testing::PrintToString(b_->records);
+  EXPECT_EQ(top_.done(), "succeeded");
+  // What reached the top, in order: A's Pong, B's Pang (through the placeholder), A's Echoed.
+  EXPECT_EQ(top_.events(), (std::vector<std::string>{"Pong", "Pang", "Echoed"}));
+  // B traced its part of the tree under A's paths.
+  EXPECT_TRUE(b_->recorded("Both/Far/Emit: Both/Far/Emit succeeded"));
+  EXPECT_TRUE(planet_test::wait_until([&] { return host_->running() == 0; }, 10s));
+}
+
+TEST_F(RemoteTree, HaltingTheNodeHaltsTheSubtreeOnItsHost) {
+  start(hosts_->make("B", "Long", R"(<sequential name="Long"><behavior type="Wait" duration="1h"/></sequential>)"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return b_->recorded("Long/Wait started"); }, 30s));
+  EXPECT_EQ(host_->running(), 1u);
+  a_.runtime.run([this] { root_->halt(); });
+  EXPECT_TRUE(planet_test::wait_until([&] { return host_->running() == 0; }, 30s));
+  EXPECT_TRUE(planet_test::wait_until([&] { return b_->recorded("Long/Wait halted"); }, 30s));
+  EXPECT_EQ(top_.done(), "") << "a halted node does not complete";
+}
+
+TEST_F(RemoteTree, AHostThatGoesAwayFailsTheNodeWithTheReason) {
+  start(hosts_->make("B", "Long", R"(<sequential name="Long"><behavior type="Wait" duration="1h"/></sequential>)"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return host_->running() == 1; }, 30s));
+  host_.reset();
+  b_.reset();  // server B stops: its sockets close
+  ASSERT_TRUE(planet_test::wait_until([&] { return !top_.done().empty(); }, 30s));
+  EXPECT_TRUE(top_.done().starts_with("failed: disconnected: host B")) << top_.done();
+}
+
+TEST_F(RemoteTree, ASubtreeTheHostCannotBuildFailsTheNodeWithTheHostsReason) {
+  start(hosts_->make("B", "Odd", R"(<sequential name="Odd"><behavior type="Juggle"/></sequential>)"));
+  ASSERT_TRUE(planet_test::wait_until([&] { return !top_.done().empty(); }, 30s));
+  EXPECT_NE(top_.done().find("host B did not start Odd"), std::string::npos) << top_.done();
+  EXPECT_NE(top_.done().find("Juggle"), std::string::npos) << top_.done();
+  EXPECT_EQ(host_->running(), 0u);
+}
+
+TEST(RemoteTreeEvents, AnEventCrossesServersWithItsPropertiesAndMalformedBytesAreRefused) {
+  b::Event e("WaypointReached");
+  e.set("waypoint", std::string("door")).set("index", std::int32_t{3}).set("x", 1.5);
+  const auto back = decode_tree_event(encode_tree_event(e));
+  EXPECT_EQ(back.type(), "WaypointReached");
+  EXPECT_EQ(back.get<std::string>("waypoint"), "door");
+  EXPECT_EQ(back.get<std::int32_t>("index"), 3);
+  EXPECT_DOUBLE_EQ(back.get<double>("x"), 1.5);
+  auto broken = encode_tree_event(e);
+  broken.encoded.bytes.resize(broken.encoded.bytes.size() / 2);
+  EXPECT_THROW(decode_tree_event(broken), p::Error);
+  broken = encode_tree_event(e);
+  broken.encoded.bytes.push_back(std::byte{1});
+  EXPECT_THROW(decode_tree_event(broken), p::Error);
+}
+
+}  // namespace
+}  // namespace icars::control
