@@ -21,7 +21,7 @@ std::vector<std::string> PolicyRepository::names() const {
 }
 
 std::unique_ptr<Coordinator> PolicyFactory::create(Policy policy, behavior::Environment& env) const {
-  return std::make_unique<Coordinator>(std::move(policy), registry_, env);
+  return std::make_unique<Coordinator>(std::move(policy), registry_, env, hosts_);
 }
 
 CollaborationManager::CollaborationManager(PolicyRepository repository,

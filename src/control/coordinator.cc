@@ -145,8 +145,8 @@ struct Coordinator::Selected {
   const Node* from = nullptr;
 };
 
-Coordinator::Coordinator(Policy policy, const b::BehaviorRegistry& registry, b::Environment& env)
-    : policy_(std::move(policy)), registry_(registry), env_(env) {
+Coordinator::Coordinator(Policy policy, const b::BehaviorRegistry& registry, b::Environment& env, RemoteHosts* hosts)
+    : policy_(std::move(policy)), registry_(registry), env_(env), hosts_(hosts) {
   std::function<std::unique_ptr<Node>(const StateSpec&, Node*)> build = [&](const StateSpec& spec, Node* parent) {
     auto node = std::make_unique<Node>();
     node->spec = &spec;
@@ -269,7 +269,7 @@ void Coordinator::activate(Node& node) {
   if (!spec.task.empty()) {
     const auto* task_spec = policy_.task(spec.task);
     try {
-      node.task = std::make_unique<Task>(*task_spec, build_tree(task_spec->root, registry_), env_,
+      node.task = std::make_unique<Task>(*task_spec, build_tree(task_spec->root, registry_, hosts_), env_,
                                          [this, life, &node](Task&, const b::Event& e) {
                                            if (life.lock()) on_task_event(e, &node);
                                          });

@@ -189,6 +189,28 @@ class Parser {
     return task;
   }
 
+  // host="B": the node and its subtree run on behavior host B (docs/distribution.md); the
+  // node's XML without the attribute is what the host builds it from.
+  void placement(const pugi::xml_node& node, NodeSpec& spec) {
+    const auto host = node.attribute("host");
+    if (!host) return;
+    spec.host = host.as_string();
+    if (spec.host.empty() || spec.host.find_first_of(" \t\r\n/") != std::string::npos) {
+      error(line(node), fmt::format("host=\"{}\": expected the name of a behavior host", spec.host));
+      return;
+    }
+    if (std::string_view(node.name()) == "condition") {
+      error(line(node), "<condition> is part of its reactive composite and cannot run on another host");
+      return;
+    }
+    pugi::xml_document copy;
+    auto placed = copy.append_copy(node);
+    placed.remove_attribute("host");
+    std::ostringstream xml;
+    placed.print(xml, "", pugi::format_raw);
+    spec.xml = xml.str();
+  }
+
   // A node of a behavior tree, inside `parent` (an element name; "task" for a root).
   NodeSpec parse_node(const pugi::xml_node& node, std::string_view parent = "task") {
     NodeSpec spec;
@@ -201,12 +223,13 @@ class Parser {
     }
     spec.name = node.attribute("name").as_string();
     const std::string_view kind = node.name();
+    placement(node, spec);
     if (kind == "behavior") {
       spec.kind = NodeSpec::Kind::behavior;
       spec.type = required(node, "type");
       for (auto a : node.attributes()) {
         const std::string_view n = a.name();
-        if (n != "type" && n != "name") spec.params[a.name()] = a.value();
+        if (n != "type" && n != "name" && n != "host") spec.params[a.name()] = a.value();
       }
       for (auto child : node.children()) {
         if (child.type() != pugi::node_element) continue;
@@ -234,7 +257,7 @@ class Parser {
     if (spec.name.empty()) spec.name = spec.type;
     if (kind == "sequential") {
       spec.kind = NodeSpec::Kind::sequential;
-      check_attributes(node, {"name", "repeat", "on_failure"});
+      check_attributes(node, {"name", "host", "repeat", "on_failure"});
       if (node.attribute("repeat")) {
         const std::string_view r = node.attribute("repeat").value();
         spec.sequence.repeat = r == "forever" ? 0 : static_cast<int>(checked(node, [&] { return b::parse_integer("repeat", r); }));
@@ -248,19 +271,19 @@ class Parser {
     } else if (kind == "concurrent" || kind == "filter" || kind == "interpret" || kind == "aggregate") {
       if (kind == "concurrent") {
         spec.kind = NodeSpec::Kind::concurrent;
-        check_attributes(node, {"name", "complete"});
+        check_attributes(node, {"name", "host", "complete"});
       } else if (kind == "filter") {
         spec.kind = NodeSpec::Kind::filter;
-        check_attributes(node, {"name", "complete", "pass"});
+        check_attributes(node, {"name", "host", "complete", "pass"});
         if (!node.attribute("pass")) error(spec.line, "<filter> needs a 'pass' condition");
         spec.pass = condition(node, "pass");
       } else if (kind == "interpret") {
         spec.kind = NodeSpec::Kind::interpret;
-        check_attributes(node, {"name", "complete", "pass_unmatched"});
+        check_attributes(node, {"name", "host", "complete", "pass_unmatched"});
         spec.pass_unmatched = checked(node, [&] { return b::parse_boolean("pass_unmatched", node.attribute("pass_unmatched").as_string("false")); });
       } else {
         spec.kind = NodeSpec::Kind::aggregate;
-        check_attributes(node, {"name", "complete", "when", "emit", "count", "all_of", "window", "pass_unmatched"});
+        check_attributes(node, {"name", "host", "complete", "when", "emit", "count", "all_of", "window", "pass_unmatched"});
         auto& a = spec.aggregate;
         a.when = condition(node, "when");
         a.emit = required(node, "emit");
@@ -280,7 +303,7 @@ class Parser {
       spec.kind = kind == "fallback"            ? NodeSpec::Kind::fallback
                   : kind == "reactive_sequence" ? NodeSpec::Kind::reactive_sequence
                                                 : NodeSpec::Kind::reactive_fallback;
-      check_attributes(node, {"name"});
+      check_attributes(node, {"name", "host"});
     } else if (kind == "condition") {
       spec.kind = NodeSpec::Kind::condition;
       check_attributes(node, {"name", "event", "if"});
@@ -290,7 +313,7 @@ class Parser {
       }
     } else if (kind == "when") {
       spec.kind = NodeSpec::Kind::when;
-      check_attributes(node, {"name", "event", "if", "running", "times", "on_failure"});
+      check_attributes(node, {"name", "host", "event", "if", "running", "times", "on_failure"});
       auto& w = spec.when;
       w.trigger = trigger(node);
       const std::string_view running = node.attribute("running").as_string("ignore");
@@ -308,22 +331,22 @@ class Parser {
     } else if (kind == "retry" || kind == "repeat") {
       spec.kind = kind == "retry" ? NodeSpec::Kind::retry : NodeSpec::Kind::repeat;
       if (kind == "retry") {
-        check_attributes(node, {"name", "times", "delay"});
+        check_attributes(node, {"name", "host", "times", "delay"});
         if (node.attribute("delay")) spec.delay = checked(node, [&] { return b::parse_duration("delay", node.attribute("delay").value()); });
       } else {
-        check_attributes(node, {"name", "times"});
+        check_attributes(node, {"name", "host", "times"});
       }
       if (!required(node, "times").empty()) spec.times = count(node, "times");
     } else if (kind == "timeout") {
       spec.kind = NodeSpec::Kind::timeout;
-      check_attributes(node, {"name", "after"});
+      check_attributes(node, {"name", "host", "after"});
       if (const auto after = required(node, "after"); !after.empty()) {
         spec.limit = checked(node, [&] { return b::parse_duration("after", after); });
         if (spec.limit.count() <= 0) error(spec.line, fmt::format("after=\"{}\": expected a duration longer than 0 (30s, 5min)", after));
       }
     } else if (kind == "invert") {
       spec.kind = NodeSpec::Kind::invert;
-      check_attributes(node, {"name"});
+      check_attributes(node, {"name", "host"});
     } else {
       error(spec.line, fmt::format("unknown node <{}> (expected behavior, sequential, fallback, concurrent, filter, "
                                    "interpret, aggregate, reactive_sequence, reactive_fallback, when, retry, "

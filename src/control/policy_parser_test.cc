@@ -400,7 +400,7 @@ TEST(PolicyParser, MistakesInReactiveNodesAndDecoratorsAreLocatedErrors) {
            "9: <timeout> needs a 'after' attribute",
            "10: after=\"0s\": expected a duration longer than 0 (30s, 5min)",
            "11: <invert> wraps exactly one node, found 0",
-           "12: <repeat> has no attribute 'until' (it takes: name, times)",
+           "12: <repeat> has no attribute 'until' (it takes: name, host, times)",
            "13: <fallback> needs at least one node",
            "14: <condition> belongs in <reactive_sequence> or <reactive_fallback>, not in <sequential>",
            "16: in if=\"occupied ==\": column 12: expected an expression",

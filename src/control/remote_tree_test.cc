@@ -15,6 +15,7 @@
 #include "icars/behavior/composite.h"
 #include "icars/behavior/registry.h"
 #include "icars/clock/wall_clock.h"
+#include "icars/control/collaboration.h"
 #include "icars/control/remote_tree.h"
 #include "icars/control/tree_builder.h"
 
@@ -159,6 +160,79 @@ TEST_F(RemoteTree, ASubtreeTheHostCannotBuildFailsTheNodeWithTheHostsReason) {
   EXPECT_NE(top_.done().find("host B did not start Odd"), std::string::npos) << top_.done();
   EXPECT_NE(top_.done().find("Juggle"), std::string::npos) << top_.done();
   EXPECT_EQ(host_->running(), 0u);
+}
+
+// A policy places a node on host B with host="B": the Coordinator's task runs it there and
+// moves on when it is done; B going away mid-task is a failure transition with the reason.
+constexpr const char* kSplitPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="split">
+  <task name="Work">
+    <sequential name="Round">
+      <behavior type="Wait" name="Far" duration="{far}" host="B"/>
+      <behavior type="Emit" event="Near"/>
+    </sequential>
+  </task>
+  <task name="Idle"><behavior type="Wait" duration="1h"/></task>
+  <statechart initial="Working">
+    <transition event="failed" target="Trouble"/>
+    <state name="Working" task="Work"><transition event="done" target="Finished"/></state>
+    <state name="Finished" task="Idle"/>
+    <state name="Trouble" task="Idle"/>
+  </statechart>
+</policy>
+)xml";
+
+std::string split_policy(const std::string& far) {
+  std::string xml = kSplitPolicy;
+  xml.replace(xml.find("{far}"), 5, far);
+  return xml;
+}
+
+TEST_F(RemoteTree, APolicysNodeWithAHostRunsThereAndItsTaskGoesOn) {
+  const auto parsed = parse_policy(split_policy("50ms"), "split.xml", a_.registry);
+  auto coordinator = PolicyFactory(a_.registry, hosts_.get()).create(parsed.policy, a_.env);
+  coordinator->start();
+  ASSERT_TRUE(planet_test::wait_until([&] { return coordinator->current() == "Finished"; }, 30s))
+      << coordinator->current() << "\nA: " << ::testing::PrintToString(a_.records);
+  EXPECT_TRUE(b_->recorded("Work/Round/Far succeeded")) << ::testing::PrintToString(b_->records);
+  coordinator->stop();
+}
+
+TEST_F(RemoteTree, AHostGoneMidTaskIsAFailureTransitionWithTheReason) {
+  const auto parsed = parse_policy(split_policy("1h"), "split.xml", a_.registry);
+  auto coordinator = PolicyFactory(a_.registry, hosts_.get()).create(parsed.policy, a_.env);
+  coordinator->start();
+  ASSERT_TRUE(planet_test::wait_until([&] { return b_->recorded("Work/Round/Far started"); }, 30s)) << ::testing::PrintToString(b_->records);
+  host_.reset();
+  b_.reset();  // server B stops: its sockets close
+  ASSERT_TRUE(planet_test::wait_until([&] { return coordinator->current() == "Trouble"; }, 30s)) << coordinator->current();
+  EXPECT_TRUE(a_.recorded("Working -> Trouble on failed")) << ::testing::PrintToString(a_.records);
+  EXPECT_TRUE(a_.recorded("disconnected: host B")) << ::testing::PrintToString(a_.records);
+  coordinator->stop();
+}
+
+TEST(RemoteTreePolicy, AHostAttributeIsCheckedAndAServerWithoutThatHostFailsTheTask) {
+  b::BehaviorRegistry registry;
+  b::register_generic_behaviors(registry);
+  const auto bad = [&](const std::string& attribute) {
+    std::string xml = kSplitPolicy;
+    xml.replace(xml.find("host=\"B\""), 8, attribute);
+    xml.replace(xml.find("{far}"), 5, "1s");
+    try {
+      parse_policy(xml, "split.xml", registry);
+    } catch (const PolicyError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(bad("host=\"\"").find("expected the name of a behavior host"), std::string::npos);
+  EXPECT_NE(bad("host=\"a b\"").find("expected the name of a behavior host"), std::string::npos);
+  // The node's XML, as the host will build it, without the attribute.
+  const auto parsed = parse_policy(split_policy("1s"), "split.xml", registry);
+  const auto& far = parsed.policy.task("Work")->root.children.at(0);
+  EXPECT_EQ(far.host, "B");
+  EXPECT_EQ(far.xml, R"(<behavior type="Wait" name="Far" duration="1s"/>)");
+  EXPECT_THROW(build_tree(parsed.policy.task("Work")->root, registry), std::invalid_argument);
 }
 
 TEST(RemoteTreeEvents, AnEventCrossesServersWithItsPropertiesAndMalformedBytesAreRefused) {

@@ -1,10 +1,21 @@
 #include "icars/control/tree_builder.h"
 
+#include <stdexcept>
+
+#include "icars/control/remote_tree.h"
+
 namespace icars::control {
 
 namespace b = icars::behavior;
 
-std::unique_ptr<b::Behavior> build_tree(const NodeSpec& spec, const b::BehaviorRegistry& registry) {
+std::unique_ptr<b::Behavior> build_tree(const NodeSpec& spec, const b::BehaviorRegistry& registry, RemoteHosts* hosts) {
+  if (!spec.host.empty()) {
+    if (hosts == nullptr || !hosts->knows(spec.host)) {
+      throw std::invalid_argument("node '" + spec.name + "' runs on behavior host '" + spec.host +
+                                  "', which this server does not know");
+    }
+    return hosts->make(spec.host, spec.name, spec.xml);
+  }
   std::unique_ptr<b::Behavior> node;
   switch (spec.kind) {
     case NodeSpec::Kind::behavior:
@@ -53,7 +64,7 @@ std::unique_ptr<b::Behavior> build_tree(const NodeSpec& spec, const b::BehaviorR
       break;
   }
   node->set_identity(spec.type, spec.name);
-  for (const auto& child : spec.children) node->add_child(build_tree(child, registry));
+  for (const auto& child : spec.children) node->add_child(build_tree(child, registry, hosts));
   return node;
 }
 

@@ -27,11 +27,14 @@ class PolicyRepository {
 // Policy → Coordinator with its tasks and behaviors.
 class PolicyFactory {
  public:
-  explicit PolicyFactory(const behavior::BehaviorRegistry& registry) : registry_(registry) {}
+  // `hosts`: where the policies' nodes with a host attribute run (remote_tree.h); null: none may.
+  explicit PolicyFactory(const behavior::BehaviorRegistry& registry, RemoteHosts* hosts = nullptr)
+      : registry_(registry), hosts_(hosts) {}
   std::unique_ptr<Coordinator> create(Policy policy, behavior::Environment& env) const;
 
  private:
   const behavior::BehaviorRegistry& registry_;
+  RemoteHosts* hosts_;
 };
 
 class CollaborationManager {

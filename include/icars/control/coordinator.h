@@ -59,7 +59,9 @@ class Task : public behavior::Owner {
 
 class Coordinator {
  public:
-  Coordinator(Policy policy, const behavior::BehaviorRegistry& registry, behavior::Environment& env);
+  // `hosts`: where nodes with a host attribute run (remote_tree.h); null: none may.
+  Coordinator(Policy policy, const behavior::BehaviorRegistry& registry, behavior::Environment& env,
+              RemoteHosts* hosts = nullptr);
   ~Coordinator();  // stops
   Coordinator(const Coordinator&) = delete;
   Coordinator& operator=(const Coordinator&) = delete;
@@ -108,6 +110,7 @@ class Coordinator {
   Policy policy_;
   const behavior::BehaviorRegistry& registry_;
   behavior::Environment& env_;
+  RemoteHosts* hosts_ = nullptr;
   std::unique_ptr<Node> root_;
   std::vector<Node*> finals_entered_;  // by the entry under way, for complete_finals()
   bool finished_ = false;

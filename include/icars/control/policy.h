@@ -48,6 +48,10 @@ struct NodeSpec {
   Time limit{0};                                // timeout
   std::vector<NodeSpec> children;
   int line = 0;
+  // host="B": the node runs on behavior host B (remote_tree.h); `xml` is the node as the host
+  // builds it (the element without its host attribute).
+  std::string host;
+  std::string xml;
 };
 
 struct TaskSpec {

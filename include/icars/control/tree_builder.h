@@ -11,8 +11,13 @@
 
 namespace icars::control {
 
+class RemoteHosts;
+
 // Builds the behavior tree of a node spec. Throws behavior::ParamError for a leaf the registry
-// refuses (a spec that parse_policy accepted has none).
-std::unique_ptr<behavior::Behavior> build_tree(const NodeSpec& spec, const behavior::BehaviorRegistry& registry);
+// refuses (a spec that parse_policy accepted has none). A node with a host (host="B") becomes a
+// node that runs it there (remote_tree.h) through `hosts`; std::invalid_argument when `hosts` is
+// null or does not know the host.
+std::unique_ptr<behavior::Behavior> build_tree(const NodeSpec& spec, const behavior::BehaviorRegistry& registry,
+                                               RemoteHosts* hosts = nullptr);
 
 }  // namespace icars::control
