@@ -26,14 +26,14 @@ std::unique_ptr<Coordinator> PolicyFactory::create(Policy policy, behavior::Envi
 
 CollaborationManager::CollaborationManager(PolicyRepository repository,
                                            const behavior::BehaviorRegistry& registry,
-                                           behavior::Environment& env)
-    : repository_(std::move(repository)), registry_(registry), env_(env) {}
+                                           behavior::Environment& env, RemoteHosts* hosts)
+    : repository_(std::move(repository)), registry_(registry), env_(env), hosts_(hosts) {}
 
 CollaborationManager::~CollaborationManager() { stop(); }
 
 ParsedPolicy CollaborationManager::run(const std::string& name) {
   auto parsed = parse_policy_file(repository_.path_of(name), registry_);
-  auto next = PolicyFactory(registry_).create(parsed.policy, env_);
+  auto next = PolicyFactory(registry_, hosts_).create(parsed.policy, env_);
   stop();
   coordinator_ = std::move(next);
   coordinator_->start();

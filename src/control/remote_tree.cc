@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "icars/control/policy.h"
@@ -396,6 +397,20 @@ bool RemoteHosts::knows(const std::string& name) const {
 bool RemoteHosts::wait_connected(const std::string& name, std::chrono::milliseconds timeout) const {
   const auto p = peer(name);
   return p->wait_connected(timeout);
+}
+
+bool RemoteHosts::wait_all_connected(std::chrono::milliseconds timeout) const {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  std::vector<std::shared_ptr<p::Peer>> peers;
+  {
+    std::lock_guard lock(mutex_);
+    for (const auto& [name, peer] : hosts_) peers.push_back(peer);
+  }
+  for (const auto& peer : peers) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (!peer->wait_connected(std::max(left, std::chrono::milliseconds(0)))) return false;
+  }
+  return true;
 }
 
 std::shared_ptr<p::Peer> RemoteHosts::peer(const std::string& name) const {

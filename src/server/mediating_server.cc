@@ -11,12 +11,18 @@ MediatingServer::MediatingServer(ServerOptions options)
       communicator_(std::make_unique<planet::Communicator>(options_.planet)),
       framework_(std::make_unique<service::ServiceFramework>(*communicator_, options_.adaptors,
                                                              options_.registry, options_.composers)),
-      access_(options_.planet.access) {}
+      access_(options_.planet.access) {
+  if (!options_.behavior_hosts.empty()) {
+    hosts_ = std::make_unique<control::RemoteHosts>(*communicator_);
+    for (const auto& h : options_.behavior_hosts) hosts_->add(h.name, h.host, h.port);
+  }
+}
 
 MediatingServer::~MediatingServer() {
   // Behaviors first (they call services), then the Service Framework (it stops taking
   // registrations), then the PLANET server with every connection.
   stop();
+  hosts_.reset();
   framework_.reset();
   communicator_.reset();
 }
@@ -29,20 +35,38 @@ std::uint16_t MediatingServer::listen() {
 planet::Endpoint MediatingServer::endpoint() const { return endpoint_; }
 
 void MediatingServer::use_clock(Clock& clock) {
+  std::lock_guard lock(policy_mutex_);
   if (runtime_ && &runtime_->clock() != &clock) {
     throw std::logic_error("the mediating server's behaviors already run on another clock");
   }
   clock_ = &clock;
+  // A behavior host runs others' subtrees from now on, with or without a policy of its own.
+  if (options_.host_behaviors) start_runtime();
+}
+
+bool MediatingServer::wait_behavior_hosts(std::chrono::milliseconds timeout) {
+  return !hosts_ || hosts_->wait_all_connected(timeout);
+}
+
+// Under policy_mutex_, with a clock.
+void MediatingServer::start_runtime() {
+  if (manager_) return;
+  runtime_ = std::make_unique<behavior::Runtime>(*clock_, options_.planet.connection.activity);
+  environment_ = std::make_unique<behavior::Environment>(
+      behavior::Environment{*runtime_, framework_->container(), trace_});
+  if (options_.host_behaviors) {
+    subtree_host_ = std::make_shared<control::SubtreeHost>(*environment_, options_.behaviors, *communicator_);
+    communicator_->adapter().add(std::string(control::kBehaviorHostPath), subtree_host_);
+  }
+  manager_ = std::make_unique<control::CollaborationManager>(repository_, options_.behaviors, *environment_,
+                                                             hosts_.get());
 }
 
 control::ParsedPolicy MediatingServer::run_policy(const std::string& name) {
   std::lock_guard lock(policy_mutex_);
   if (!manager_) {
     if (!clock_) throw std::logic_error("the mediating server has no clock: call use_clock() first");
-    runtime_ = std::make_unique<behavior::Runtime>(*clock_, options_.planet.connection.activity);
-    environment_ = std::make_unique<behavior::Environment>(
-        behavior::Environment{*runtime_, framework_->container(), trace_});
-    manager_ = std::make_unique<control::CollaborationManager>(repository_, options_.behaviors, *environment_);
+    start_runtime();
   }
   return manager_->run(name);
 }
@@ -58,6 +82,11 @@ void MediatingServer::stop(std::chrono::milliseconds drain) {
   stop_policy(drain);
   std::lock_guard lock(policy_mutex_);
   manager_.reset();
+  if (subtree_host_) {
+    // Others' subtrees end here (halted, on the runtime that ran them).
+    communicator_->adapter().remove(std::string(control::kBehaviorHostPath));
+    subtree_host_.reset();
+  }
   environment_.reset();
   runtime_.reset();
   clock_ = nullptr;

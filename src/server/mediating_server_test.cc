@@ -115,6 +115,42 @@ TEST(MediatingServer, TakesDevicesAndRunsAPolicyOnTheClockItIsGiven) {
   EXPECT_TRUE(server.container().all().front()->available());
 }
 
+// Two servers: B hosts behaviors, A's policy places the dusk on B (host="B"). The Wait runs on
+// B's runtime and clock, B's Emit reaches A's task as its own, and A's statechart moves on.
+TEST(MediatingServer, APolicyPlacesASubtreeOnABehaviorHost) {
+  SimClock clock(at_time(0, 18, 0));  // one clock for both, as servers following one house; outlives them
+  PolicyDir dir;
+  std::string evening = kEvening;
+  evening.replace(evening.find(R"(<sequential name="dusk">)"), 24, R"(<sequential name="dusk" host="B">)");
+  dir.write("evening.xml", evening);
+  auto b_options = options_with(dir);
+  b_options.host_behaviors = true;
+  MediatingServer b(std::move(b_options));
+  behavior::TraceLog b_log;
+  b.trace().add_sink(b_log.sink());
+  const auto b_port = b.listen();
+  auto a_options = options_with(dir);
+  a_options.behavior_hosts = {{"B", "127.0.0.1", b_port}};
+  MediatingServer a(std::move(a_options));
+  behavior::TraceLog a_log;
+  a.trace().add_sink(a_log.sink());
+  a.listen();
+
+  b.use_clock(clock);
+  a.use_clock(clock);
+  ASSERT_TRUE(a.wait_behavior_hosts(20s));
+  a.run_policy("evening");
+  ASSERT_TRUE(b_log.wait_for([](const behavior::TraceRecord& r) { return r.text == "Wait/dusk/Wait started"; }, 20s))
+      << "B never ran the dusk";
+  ASSERT_TRUE(b.runtime()->drain(20s));  // its Wait has set its timer
+  clock.advance_by(30min);
+  ASSERT_TRUE(a_log.wait_for([](const behavior::TraceRecord& r) { return r.kind == "transition"; }, 20s));
+  EXPECT_EQ(a_log.of_kind("transition").front().text, "Day -> Night on Dark");
+  EXPECT_TRUE(b_log.wait_for([](const behavior::TraceRecord& r) { return r.text == "Wait/dusk/Emit succeeded"; }, 20s));
+  a.stop();
+  b.stop();
+}
+
 TEST(MediatingServer, BadEndpointsAreRefusedBeforeAnythingStarts) {
   PolicyDir dir;
   for (const auto* bad : {"localhost", "127.0.0.1:http", "127.0.0.1:70000", ":4711"}) {

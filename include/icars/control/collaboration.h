@@ -39,8 +39,9 @@ class PolicyFactory {
 
 class CollaborationManager {
  public:
+  // `hosts`: where the policies' nodes with a host attribute run (remote_tree.h); null: none may.
   CollaborationManager(PolicyRepository repository, const behavior::BehaviorRegistry& registry,
-                       behavior::Environment& env);
+                       behavior::Environment& env, RemoteHosts* hosts = nullptr);
   ~CollaborationManager();  // stops the running policy
 
   // Loads, checks and starts a policy, replacing the one running. Throws PolicyError (the
@@ -54,6 +55,7 @@ class CollaborationManager {
   PolicyRepository repository_;
   const behavior::BehaviorRegistry& registry_;
   behavior::Environment& env_;
+  RemoteHosts* hosts_;
   std::unique_ptr<Coordinator> coordinator_;
 };
 

@@ -108,6 +108,8 @@ class RemoteHosts {
   bool knows(const std::string& name) const;
   // Waits until the link to `name` is up; false after `timeout`.
   bool wait_connected(const std::string& name, std::chrono::milliseconds timeout) const;
+  // Waits until the links to every host are up; false after `timeout`.
+  bool wait_all_connected(std::chrono::milliseconds timeout) const;
 
   // The node, named `node` in its tree, that runs the subtree `xml` (one node of a policy's task
   // named `node`) on host `name`. std::invalid_argument for an unknown host.

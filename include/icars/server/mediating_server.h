@@ -27,6 +27,7 @@
 #include "icars/behavior/runtime.h"
 #include "icars/behavior/trace.h"
 #include "icars/control/collaboration.h"
+#include "icars/control/remote_tree.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/endpoint.h"
 #include "icars/planet/security.h"
@@ -53,6 +54,17 @@ struct ServerOptions {
   behavior::BehaviorRegistry behaviors;
   // Where policies are found by name (<dir>/<name>.xml); a path with '/' or .xml is used as is.
   std::string policy_dir = ".";
+  // Distribution (docs/distribution.md): `host_behaviors` serves this server's BehaviorHost, so
+  // other servers' policies may place subtrees here (they run on this server's runtime, from
+  // use_clock() on); `behavior_hosts` are the servers this one's policies may place subtrees on
+  // (host="NAME" on a node).
+  bool host_behaviors = false;
+  struct BehaviorHostAddress {
+    std::string name;  // as policies name it
+    std::string host;
+    std::uint16_t port = 0;
+  };
+  std::vector<BehaviorHostAddress> behavior_hosts;
 };
 
 // What reload_access() did.
@@ -90,6 +102,9 @@ class MediatingServer {
   // house's time). Needed before the first run_policy(); the clock must outlive the server, or
   // stop() must have returned before it goes.
   void use_clock(Clock& clock);
+  // Waits until the links to every behavior host (ServerOptions::behavior_hosts) are up, so a
+  // policy's first placed node finds its host; false after `timeout`.
+  bool wait_behavior_hosts(std::chrono::milliseconds timeout);
   // The behavior runtime (null before the first run_policy()).
   behavior::Runtime* runtime() { return runtime_.get(); }
 
@@ -121,6 +136,8 @@ class MediatingServer {
   std::shared_ptr<const planet::AccessPolicy> access() const;
 
  private:
+  void start_runtime();
+
   ServerOptions options_;
   planet::Endpoint endpoint_;
   control::PolicyRepository repository_;
@@ -128,8 +145,10 @@ class MediatingServer {
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<service::ServiceFramework> framework_;
   Clock* clock_ = nullptr;
+  std::unique_ptr<control::RemoteHosts> hosts_;  // with behavior_hosts
   std::unique_ptr<behavior::Runtime> runtime_;
   std::unique_ptr<behavior::Environment> environment_;
+  std::shared_ptr<control::SubtreeHost> subtree_host_;  // with host_behaviors, while the runtime runs
   std::unique_ptr<control::CollaborationManager> manager_;
   std::mutex policy_mutex_;  // run_policy, stop_policy and stop against the thread-safe accessors
   mutable std::mutex access_mutex_;
