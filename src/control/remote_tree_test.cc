@@ -86,9 +86,9 @@ class RemoteTree : public ::testing::Test {
   void SetUp() override {
     host_ = std::make_shared<SubtreeHost>(b_->env, b_->registry, b_->communicator);
     b_->communicator.adapter().add(std::string(kBehaviorHostPath), host_);
-    const auto port = b_->communicator.listen("127.0.0.1", 0);
+    b_port_ = b_->communicator.listen("127.0.0.1", 0);
     hosts_ = std::make_unique<RemoteHosts>(a_.communicator);
-    hosts_->add("B", "127.0.0.1", port);
+    hosts_->add("B", "127.0.0.1", b_port_);
     ASSERT_TRUE(hosts_->wait_connected("B", 20s));
   }
   void TearDown() override {
@@ -109,6 +109,7 @@ class RemoteTree : public ::testing::Test {
   std::unique_ptr<Side> b_ = std::make_unique<Side>();
   std::shared_ptr<SubtreeHost> host_;
   std::unique_ptr<RemoteHosts> hosts_;
+  std::uint16_t b_port_ = 0;
   Top top_;
   std::unique_ptr<b::Behavior> root_;
 };
@@ -233,6 +234,38 @@ TEST(RemoteTreePolicy, AHostAttributeIsCheckedAndAServerWithoutThatHostFailsTheT
   EXPECT_EQ(far.host, "B");
   EXPECT_EQ(far.xml, R"(<behavior type="Wait" name="Far" duration="1s"/>)");
   EXPECT_THROW(build_tree(parsed.policy.task("Work")->root, registry), std::invalid_argument);
+}
+
+// Bad input from a peer: a host answers malformed descriptions with SubtreeRefused and the
+// parser's reason, ignores events with malformed bytes and calls for subtrees it does not have.
+TEST_F(RemoteTree, AHostRefusesMalformedSubtreesAndIgnoresBadEventsAndUnknownIds) {
+  p::Communicator caller;
+  auto peer = caller.connect("127.0.0.1", b_port_);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  remote::BehaviorHostPrx b(caller, peer, std::string(kBehaviorHostPath));
+  const auto parent = a_.communicator.reference<remote::SubtreeParent>(std::string(kSubtreeParentPath));
+  for (const std::string xml : {"<sequential name=\"Open\"", "", "<task name=\"T\"/>", "not xml at all",
+                                R"(<behavior type="Wait" duration="soon"/>)", "<sequential/><sequential/>",
+                                // out of the host's wrapper into a task of its own
+                                R"(<behavior type="Wait" duration="1s"/></task><task name="Other">)"
+                                R"(<behavior type="Wait" duration="1h"/>)"}) {
+    try {
+      b.start("X", xml, parent);
+      ADD_FAILURE() << "started: " << xml;
+    } catch (const remote::SubtreeRefused& e) {
+      EXPECT_FALSE(e.reason().empty()) << xml;
+    }
+  }
+  remote::TreeEvent garbage;
+  garbage.encoded.bytes = {std::byte{0xff}, std::byte{0x01}, std::byte{0x02}};
+  b.deliver(12345, garbage);                  // unknown subtree, malformed bytes: nothing happens
+  b.deliver(12345, encode_tree_event(b::Event("Hello")));
+  b.halt(12345);
+  EXPECT_EQ(b.status(12345), "unknown");
+  EXPECT_EQ(host_->running(), 0u);
+  // The host still works.
+  EXPECT_EQ(b.status(b.start("X", R"(<behavior type="Wait" duration="1h"/>)", parent)), "running");
+  EXPECT_EQ(host_->running(), 1u);
 }
 
 TEST(RemoteTreeEvents, AnEventCrossesServersWithItsPropertiesAndMalformedBytesAreRefused) {
