@@ -154,8 +154,9 @@ SubtreeHost::~SubtreeHost() {
   env_.runtime.run([&hosted] { hosted.clear(); });
 }
 
-std::int64_t SubtreeHost::start(const std::string& path, const std::string& xml, remote::SubtreeParentPrx parent,
-                                const p::Current& current) {
+std::int64_t SubtreeHost::start(const std::string& path, const std::string& xml, const p::Current& current) {
+  // The caller's SubtreeParent, over the link this call came on.
+  remote::SubtreeParentPrx parent(communicator_, current.connection, std::string(kSubtreeParentPath));
   std::unique_ptr<b::Behavior> root;
   try {
     root = build_tree(parse_subtree(xml, registry_), registry_);
@@ -254,7 +255,6 @@ class RemoteSubtree final : public b::Behavior {
     if (!connection) throw b::BehaviorError(fmt::format("disconnected: host {} is not connected", host_));
     connection_ = connection->id();
     remote::BehaviorHostPrx host(hosts_.communicator_, peer_, std::string(kBehaviorHostPath));
-    const auto parent = hosts_.communicator_.reference<remote::SubtreeParent>(std::string(kSubtreeParentPath));
     auto started = guard([this](std::exception_ptr e, std::int64_t id) {
       if (e) {
         // The host went away before it answered: the same failure as after it answered.
@@ -280,7 +280,7 @@ class RemoteSubtree final : public b::Behavior {
     });
     // The host's answer settles the start: a node halted before it came leaves no subtree behind.
     start_ = std::make_shared<Start>();
-    host.start_async(path(), xml_, parent,
+    host.start_async(path(), xml_,
                      [started, start = start_, host](std::exception_ptr e, std::int64_t id = 0) mutable {
                        {
                          std::lock_guard lock(start->mutex);

@@ -52,7 +52,13 @@ struct Side {
   b::Runtime runtime;
   b::Environment env;
   b::BehaviorRegistry registry;
-  p::Communicator communicator;
+  p::Communicator communicator{named_icars()};  // both alike, as two icars servers are by default
+
+  static p::CommunicatorOptions named_icars() {
+    p::CommunicatorOptions o;
+    o.name = "icars";
+    return o;
+  }
 };
 
 // The owner of a tree's root on server A: what reaches the top, and how the tree ended.
@@ -243,14 +249,13 @@ TEST_F(RemoteTree, AHostRefusesMalformedSubtreesAndIgnoresBadEventsAndUnknownIds
   auto peer = caller.connect("127.0.0.1", b_port_);
   ASSERT_TRUE(peer->wait_connected(20s));
   remote::BehaviorHostPrx b(caller, peer, std::string(kBehaviorHostPath));
-  const auto parent = a_.communicator.reference<remote::SubtreeParent>(std::string(kSubtreeParentPath));
   for (const std::string xml : {"<sequential name=\"Open\"", "", "<task name=\"T\"/>", "not xml at all",
                                 R"(<behavior type="Wait" duration="soon"/>)", "<sequential/><sequential/>",
                                 // out of the host's wrapper into a task of its own
                                 R"(<behavior type="Wait" duration="1s"/></task><task name="Other">)"
                                 R"(<behavior type="Wait" duration="1h"/>)"}) {
     try {
-      b.start("X", xml, parent);
+      b.start("X", xml);
       ADD_FAILURE() << "started: " << xml;
     } catch (const remote::SubtreeRefused& e) {
       EXPECT_FALSE(e.reason().empty()) << xml;
@@ -264,7 +269,7 @@ TEST_F(RemoteTree, AHostRefusesMalformedSubtreesAndIgnoresBadEventsAndUnknownIds
   EXPECT_EQ(b.status(12345), "unknown");
   EXPECT_EQ(host_->running(), 0u);
   // The host still works.
-  EXPECT_EQ(b.status(b.start("X", R"(<behavior type="Wait" duration="1h"/>)", parent)), "running");
+  EXPECT_EQ(b.status(b.start("X", R"(<behavior type="Wait" duration="1h"/>)")), "running");
   EXPECT_EQ(host_->running(), 1u);
 }
 

@@ -66,8 +66,7 @@ class SubtreeHost final : public remote::BehaviorHostServant {
               SubtreeHostOptions options = {});
   ~SubtreeHost() override;
 
-  std::int64_t start(const std::string& path, const std::string& xml, remote::SubtreeParentPrx parent,
-                     const planet::Current& current) override;
+  std::int64_t start(const std::string& path, const std::string& xml, const planet::Current& current) override;
   void deliver(std::int64_t subtree, const remote::TreeEvent& event, const planet::Current& current) override;
   void halt(std::int64_t subtree, const planet::Current& current) override;
   std::string status(std::int64_t subtree, const planet::Current& current) override;
