@@ -130,15 +130,7 @@ SubtreeHost::SubtreeHost(b::Environment& env, const b::BehaviorRegistry& registr
             if (hosted->connection() == e.connection->id()) orphans.push_back(id);
           }
         }
-        for (const auto id : orphans) {
-          env_.runtime.post([this, alive, id] {
-            if (alive.expired()) return;
-            if (auto hosted = find(id)) {
-              hosted->halt();
-              end(id);
-            }
-          });
-        }
+        for (const auto id : orphans) halt_later(id);
       });
 }
 
@@ -194,12 +186,14 @@ void SubtreeHost::deliver(std::int64_t subtree, const remote::TreeEvent& event, 
   });
 }
 
-void SubtreeHost::halt(std::int64_t subtree, const p::Current&) {
-  env_.runtime.post([this, alive = std::weak_ptr<const char>(alive_), subtree] {
+void SubtreeHost::halt(std::int64_t subtree, const p::Current&) { halt_later(subtree); }
+
+void SubtreeHost::halt_later(std::int64_t id) {
+  env_.runtime.post([this, alive = std::weak_ptr<const char>(alive_), id] {
     if (alive.expired()) return;
-    if (auto hosted = find(subtree)) {
+    if (auto hosted = find(id)) {
       hosted->halt();
-      end(subtree);
+      end(id);
     }
   });
 }
@@ -254,7 +248,7 @@ class RemoteSubtree final : public b::Behavior {
     const auto connection = peer_->connection();
     if (!connection) throw b::BehaviorError(fmt::format("disconnected: host {} is not connected", host_));
     connection_ = connection->id();
-    remote::BehaviorHostPrx host(hosts_.communicator_, peer_, std::string(kBehaviorHostPath));
+    auto host = host_proxy();
     auto started = guard([this](std::exception_ptr e, std::int64_t id) {
       if (e) {
         // The host went away before it answered: the same failure as after it answered.
@@ -317,15 +311,16 @@ class RemoteSubtree final : public b::Behavior {
     if (completed_) return;
     const auto connection = peer_->connection();
     if (!connection || connection->id() != connection_) return;  // its subtree went with the link
-    remote::BehaviorHostPrx host(hosts_.communicator_, peer_, std::string(kBehaviorHostPath));
-    host.halt_async(id, [](std::exception_ptr) {});
+    host_proxy().halt_async(id, [](std::exception_ptr) {});
   }
 
  private:
+  remote::BehaviorHostPrx host_proxy() const {
+    return remote::BehaviorHostPrx(hosts_.communicator_, peer_, std::string(kBehaviorHostPath));
+  }
   void send(const b::Event& e) {
     try {
-      remote::BehaviorHostPrx host(hosts_.communicator_, peer_, std::string(kBehaviorHostPath));
-      host.deliver(id_, encode_tree_event(e));
+      host_proxy().deliver(id_, encode_tree_event(e));
     } catch (const p::Error&) {
       // The link is down: the node fails when it sees it go.
     }

@@ -76,6 +76,7 @@ class SubtreeHost final : public remote::BehaviorHostServant {
  private:
   class Hosted;
   void end(std::int64_t id);  // on the runtime: forgets the subtree (after it completed or was halted)
+  void halt_later(std::int64_t id);  // halts and forgets the subtree on the runtime, if it still runs
   std::shared_ptr<Hosted> find(std::int64_t id) const;
 
   behavior::Environment& env_;
