@@ -234,6 +234,56 @@ TEST_F(RmiCall, SlowServantTimesOutWithATimeoutError) {
   EXPECT_EQ(echo().with_timeout(10s).call(Echo::echo_int, 3), 3);
 }
 
+// A relay (Servant::forward_others + Proxy::async_call_raw): calls, results of any size, typed
+// exceptions, unknown methods and notifications pass through a third endpoint undecoded.
+Servant::AsyncResult forward_to(Proxy target, ForwardedCall call) {
+  if (call.oneway) {
+    target.notify_raw(call.method, call.args);
+    co_return std::vector<std::byte>{};
+  }
+  co_return co_await target.async_call_raw(call.method, std::move(call.args), CallMode::at_most_once,
+                                           asio::use_awaitable);
+}
+
+TEST_F(RmiCall, ARelayForwardsCallsNotificationsAndErrorsUndecoded) {
+  Communicator relay;
+  const auto relay_port = relay.listen("127.0.0.1", 0);
+  auto to_server = relay.connect("127.0.0.1", server_->port);
+  ASSERT_TRUE(to_server->wait_connected(20s)) << to_server->last_error();
+  auto forwarder = std::make_shared<Servant>(std::string(Echo::type_id));
+  forwarder->forward_others([&relay, to_server](ForwardedCall call) {
+    return forward_to(Proxy(relay, to_server, "/echo"), std::move(call));
+  });
+  relay.adapter().add("/echo", forwarder);
+  auto via = client_.connect("127.0.0.1", relay_port);
+  ASSERT_TRUE(via->wait_connected(20s)) << via->last_error();
+  Proxy relayed(client_, via, "/echo");
+
+  EXPECT_EQ(relayed.call(Echo::echo_int, -7), -7);
+  std::vector<std::string> strings(50000, "relay");
+  EXPECT_EQ(relayed.call(Echo::echo_strings, strings), strings);
+  try {
+    relayed.call(Echo::refuse, "not through here");
+    FAIL() << "expected RemoteException";
+  } catch (const RemoteException& e) {
+    EXPECT_EQ(e.type_id(), "test::Refused");
+    EXPECT_EQ(e.remote_message(), "not through here");
+    EXPECT_EQ(e.properties().get<std::int32_t>("code"), 42);
+  }
+  const Operation<void()> missing{"no_such_method"};
+  try {
+    relayed.call(missing);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::unimplemented);
+    EXPECT_NE(std::string(e.what()).find("no method 'no_such_method'"), std::string::npos) << e.what();
+  }
+  const auto before = relayed.call(Echo::counted);
+  for (int i = 0; i < 100; ++i) relayed.notify(Echo::count, 1);
+  EXPECT_TRUE(planet_test::wait_until([&] { return relayed.call(Echo::counted) == before + 100; }, 20s));
+  relay.adapter().remove("/echo");
+}
+
 TEST_F(RmiCall, ServerCallsBackAnObjectPassedByReference) {
   auto callback = std::make_shared<Servant>(std::string(Callback::type_id));
   std::atomic<int> calls{0};

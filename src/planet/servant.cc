@@ -43,6 +43,12 @@ struct RunningCall {
 std::optional<Servant::AsyncResult> Servant::dispatch(std::string_view method, Reader& args,
                                                       Writer* result, const Current& current) {
   auto it = methods_.find(method);
+  if (it == methods_.end() && forward_) {
+    const auto rest = args.rest();
+    return forward_(ForwardedCall{current.connection, std::string(current.path), std::string(method),
+                                  std::vector<std::byte>(rest.begin(), rest.end()), result == nullptr,
+                                  current.communicator});
+  }
   if (it == methods_.end()) {
     throw Error(ErrorKind::unimplemented,
                 fmt::format("servant at '{}' ({}) has no method '{}'", current.path, type_id_,

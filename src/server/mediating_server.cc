@@ -1,5 +1,6 @@
 #include "icars/server/mediating_server.h"
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace icars::server {
@@ -16,6 +17,7 @@ MediatingServer::MediatingServer(ServerOptions options)
     hosts_ = std::make_unique<control::RemoteHosts>(*communicator_);
     for (const auto& h : options_.behavior_hosts) hosts_->add(h.name, h.host, h.port);
   }
+  if (options_.share_devices) framework_->share();
 }
 
 MediatingServer::~MediatingServer() {
@@ -29,6 +31,10 @@ MediatingServer::~MediatingServer() {
 
 std::uint16_t MediatingServer::listen() {
   endpoint_.port = communicator_->listen(endpoint_.host, endpoint_.port);
+  // After listening: the links announce this server's name, which its references carry.
+  if (framework_->mirrors().empty()) {
+    for (const auto& d : options_.device_peers) framework_->mirror(communicator_->connect(d.host, d.port), d.name);
+  }
   return endpoint_.port;
 }
 
@@ -42,6 +48,15 @@ void MediatingServer::use_clock(Clock& clock) {
   clock_ = &clock;
   // A behavior host runs others' subtrees from now on, with or without a policy of its own.
   if (options_.host_behaviors) start_runtime();
+}
+
+bool MediatingServer::wait_device_peers(std::chrono::milliseconds timeout) {
+  const auto until = std::chrono::steady_clock::now() + timeout;
+  for (const auto& mirror : framework_->mirrors()) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - std::chrono::steady_clock::now());
+    if (!mirror->wait_synced(std::max(left, std::chrono::milliseconds(0)))) return false;
+  }
+  return framework_->mirrors().size() == options_.device_peers.size();
 }
 
 bool MediatingServer::wait_behavior_hosts(std::chrono::milliseconds timeout) {

@@ -59,6 +59,10 @@ Adaptor::~Adaptor() = default;
 void Adaptor::bind(planet::Communicator& communicator, const std::shared_ptr<planet::Link>& link) {
   const auto connection = link ? link->connection() : nullptr;
   bound_connection_ = connection ? connection->id() : 0;
+  {
+    std::lock_guard lock(observer_mutex_);
+    bound_link_ = link;
+  }
   on_bind(communicator, link);
   set_available(true);
 }
@@ -148,7 +152,16 @@ void Adaptor::restore(bool reapply, std::function<void(Restoration)> done) {
   });
 }
 
+std::shared_ptr<planet::Link> Adaptor::bound_link() const {
+  std::lock_guard lock(observer_mutex_);
+  return bound_connection_.load() == 0 ? nullptr : bound_link_.lock();
+}
+
 void Adaptor::unbind() {
+  {
+    std::lock_guard lock(observer_mutex_);
+    bound_link_.reset();
+  }
   bound_connection_ = 0;
   set_available(false);
   on_unbind();

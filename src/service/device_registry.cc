@@ -116,6 +116,13 @@ void DeviceRegistry::register_device(const df::DeviceInfo& device, const planet:
       r.holder = holder;
       for (const auto& c : device.capabilities) {
         r.services.push_back(factory_.make(device, c));
+        // Another server's device mirrored here (docs/distribution.md) holds the id.
+        if (container_.get(r.services.back()->id())) {
+          throw df::RegistrationRefused(
+              device.id, fmt::format("service '{}' exists already on this server (a device of another server "
+                                     "with the same id)",
+                                     r.services.back()->id()));
+        }
       }
       it = devices_.emplace(device.id, std::move(r)).first;
       for (const auto& s : it->second.services) container_.add(s);
@@ -138,6 +145,7 @@ void DeviceRegistry::register_device(const df::DeviceInfo& device, const planet:
   }
   for (const auto& s : services) s->bind(communicator_, current.connection);
   if (back) came_back(device.id, services);
+  changes_.notify(device.id);
 }
 
 void DeviceRegistry::came_back(const std::string& device_id,
@@ -194,6 +202,7 @@ void DeviceRegistry::unregister_device(const std::string& id, const planet::Curr
     devices_.erase(it);
   }
   remove_services(services);
+  changes_.notify(id);
 }
 
 void DeviceRegistry::remove_services(const std::vector<std::shared_ptr<Adaptor>>& services) {
@@ -208,6 +217,21 @@ std::vector<std::string> DeviceRegistry::devices(const planet::Current&) {
   std::lock_guard lock(mutex_);
   std::vector<std::string> out;
   for (const auto& [id, r] : devices_) out.push_back(id);
+  return out;
+}
+
+std::optional<DeviceRegistry::DeviceView> DeviceRegistry::view(const std::string& device_id) const {
+  std::lock_guard lock(mutex_);
+  auto it = devices_.find(device_id);
+  if (it == devices_.end()) return std::nullopt;
+  return DeviceView{it->second.info, it->second.connection_id, it->second.services};
+}
+
+std::vector<DeviceRegistry::DeviceView> DeviceRegistry::views() const {
+  std::lock_guard lock(mutex_);
+  std::vector<DeviceView> out;
+  out.reserve(devices_.size());
+  for (const auto& [id, r] : devices_) out.push_back({r.info, r.connection_id, r.services});
   return out;
 }
 
@@ -250,6 +274,7 @@ std::size_t DeviceRegistry::forget_holder(const std::string& principal) {
     planet::Event e("DeviceForgotten");
     e.set("device", id);
     emit(std::move(e));
+    changes_.notify(id);
   }
   if (!forgotten.empty()) {
     communicator_.log().warn("forgot {} devices of principal '{}'", forgotten.size(), principal);
@@ -285,6 +310,7 @@ void DeviceRegistry::on_disconnected(std::uint64_t connection_id, const std::str
     planet::Event e("DeviceLost");
     e.set("device", id).set("reason", reason);
     emit(std::move(e));
+    changes_.notify(id);
   }
   arm_forget(std::chrono::steady_clock::now() + options_.forget_after);
 }
@@ -335,6 +361,7 @@ void DeviceRegistry::forget_expired() {
     planet::Event e("DeviceForgotten");
     e.set("device", id);
     emit(std::move(e));
+    changes_.notify(id);
   }
   if (next) arm_forget(*next);
 }

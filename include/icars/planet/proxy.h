@@ -238,6 +238,46 @@ class Proxy {
         token, std::move(args));
   }
 
+  // A relay's call (Servant::forward_others): `method` with arguments already encoded (`args`:
+  // the count and the tagged values, as ForwardedCall carries them), sent at most once or, with
+  // CallMode::idempotent over a Peer, again after a reconnection. The handler gets (error, the
+  // tagged result's bytes); a RemoteException from the servant comes back as it was thrown.
+  template <class Token>
+  auto async_call_raw(std::string method, std::vector<std::byte> args, CallMode mode, Token&& token) const {
+    using Signature = void(std::exception_ptr, std::vector<std::byte>);
+    return asio::async_initiate<Token, Signature>(
+        [this, mode](auto handler, std::string name, std::vector<std::byte> raw_args) {
+          check_bound(name);
+          auto request = encode_raw_request(RmiCode::call, name, raw_args);
+          auto work = asio::make_work_guard(asio::get_associated_executor(handler, communicator_->executor()));
+          auto observed = observe(name);
+          const std::uint32_t id = communicator_->start_call(
+              link_, std::move(request), timeout_, mode,
+              [handler = std::move(handler), work = std::move(work), observed,
+               activity = communicator_->activity()](std::exception_ptr e, Reader* r) mutable {
+                std::vector<std::byte> result;
+                if (!e && r) {
+                  const auto rest = r->rest();
+                  result.assign(rest.begin(), rest.end());
+                }
+                if (observed) observed->finished(e);
+                auto ex = work.get_executor();
+                asio::post(ex, [handler = std::move(handler), e, result = std::move(result),
+                                work = std::move(work), hold = Activity::Hold(activity.get())]() mutable {
+                  std::move(handler)(e, std::move(result));
+                  hold.release();
+                });
+              });
+          if (observed) observed->started(id);
+        },
+        token, std::move(method), std::move(args));
+  }
+  // A relay's NOTIFY, arguments already encoded; as notify().
+  void notify_raw(std::string_view method, std::span<const std::byte> args) const {
+    check_bound(method);
+    communicator_->send_oneway(*link_, encode_raw_request(RmiCode::notify, method, args));
+  }
+
   // One-way call (NOTIFY): returns once queued. Throws Error(disconnected) when the link is down
   // and Error(overloaded) when the send queue is full. Delivery is at most once: a NOTIFY still
   // queued when the link drops is discarded, never replayed after reconnection.
@@ -282,6 +322,20 @@ class Proxy {
     w.str(method);
     w.u8(static_cast<std::uint8_t>(sizeof...(A)));
     (encode_tagged(w, args), ...);
+    return out;
+  }
+
+  std::vector<std::byte> encode_raw_request(RmiCode code, std::string_view method,
+                                            std::span<const std::byte> args) const {
+    if (args.empty()) throw Error(ErrorKind::bad_data, "forwarded '" + std::string(method) + "' has no argument count");
+    std::vector<std::byte> out;
+    out.reserve(16 + path_.size() + method.size() + args.size());
+    Writer w(out);
+    w.u8(static_cast<std::uint8_t>(code));
+    w.u32(0);  // request id, assigned by the communicator
+    w.str(path_);
+    w.str(method);
+    w.raw(args);
     return out;
   }
 

@@ -162,6 +162,17 @@ decltype(auto) invoke_with_current(F& fn, std::tuple<A...>& args, const Current&
 
 }  // namespace detail
 
+// A request a servant forwards without decoding it (Servant::forward_others): a relay between
+// two links. `args` is the CALL's argument block as it came: the count and the tagged values.
+struct ForwardedCall {
+  std::shared_ptr<Connection> connection;  // the link the request came over
+  std::string path;
+  std::string method;
+  std::vector<std::byte> args;
+  bool oneway = false;  // a NOTIFY: the result is not sent anywhere
+  Communicator* communicator = nullptr;
+};
+
 class Servant {
  public:
   explicit Servant(std::string type_id) : type_id_(std::move(type_id)) {}
@@ -221,6 +232,13 @@ class Servant {
   // must outlive the calls in progress.
   void run_on(asio::any_io_executor executor) { executor_ = std::move(executor); }
 
+  // What a relay does: every method this servant does not implement goes to `fn` undecoded,
+  // which produces the tagged result (a coroutine on the io thread: it may co_await a call
+  // through Proxy::async_call_raw) or throws, as an implemented method would. For a NOTIFY the
+  // result is dropped. Set before the servant is added to an adapter.
+  using Forward = std::function<AsyncResult(ForwardedCall)>;
+  void forward_others(Forward fn) { forward_ = std::move(fn); }
+
   // Decodes the arguments in `args`, runs the method and, for a CALL, writes the tagged result
   // into `result`; an asynchronous implementation instead returns the coroutine that produces
   // the tagged result. Throws Error(unimplemented) for an unknown method, Error(bad_data) for
@@ -274,6 +292,7 @@ class Servant {
   std::unordered_map<std::string, Method, detail::StringHash, std::equal_to<>> methods_;
   std::unordered_map<std::string, bool, detail::StringHash, std::equal_to<>> coroutines_;  // async methods
   asio::any_io_executor executor_;  // none: the io thread
+  Forward forward_;                 // none: unknown methods fail with Error(unimplemented)
 };
 
 namespace detail {

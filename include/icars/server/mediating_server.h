@@ -65,6 +65,12 @@ struct ServerOptions {
     std::uint16_t port = 0;
   };
   std::vector<BehaviorHostAddress> behavior_hosts;
+  // One service directory (docs/distribution.md): `share_devices` lets other servers use the
+  // devices registered here (service::SharedDirectory); the devices the servers in
+  // `device_peers` share become services here too (from listen() on), so behaviors find and
+  // call them as their own.
+  bool share_devices = false;
+  std::vector<BehaviorHostAddress> device_peers;
 };
 
 // What reload_access() did.
@@ -105,6 +111,9 @@ class MediatingServer {
   // Waits until the links to every behavior host (ServerOptions::behavior_hosts) are up, so a
   // policy's first placed node finds its host; false after `timeout`.
   bool wait_behavior_hosts(std::chrono::milliseconds timeout);
+  // Waits until the directories of every device peer (ServerOptions::device_peers) have been
+  // read, so a policy's first behavior finds their services; false after `timeout`.
+  bool wait_device_peers(std::chrono::milliseconds timeout);
   // The behavior runtime (null before the first run_policy()).
   behavior::Runtime* runtime() { return runtime_.get(); }
 

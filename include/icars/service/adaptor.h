@@ -57,6 +57,8 @@ class Adaptor : public Service {
   const std::string& device_id() const { return device_; }
   // The connection the capability is bound to (events are accepted only over it); 0: unbound.
   std::uint64_t bound_connection() const { return bound_connection_.load(); }
+  // The link it is bound to (null: unbound): where a relay forwards other servers' calls.
+  std::shared_ptr<planet::Link> bound_link() const;
 
   // --- Device state across outages ---
   // True when the capability keeps state that commands set (a TV, a light, a speaker).
@@ -81,6 +83,11 @@ class Adaptor : public Service {
   // Reports the two-way calls made through proxy() from the next bind on (the server's record
   // of the commands it sent to devices); null: none.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
+  // The observer for calls to this capability: the registry's (if any), and the adaptor's own
+  // record of acknowledged commands (stateful capabilities). Its proxy uses it, and so does a
+  // relay forwarding another server's calls (service::SharedDirectory), so that a command sent
+  // from there is the acknowledged state an outage restores.
+  std::shared_ptr<planet::CallObserver> call_observer();
 
  protected:
   // Hooks for subclasses, called with the adaptor's lock released.
@@ -89,9 +96,6 @@ class Adaptor : public Service {
   virtual void on_removed() {}
   void log_failure(planet::Communicator& communicator, std::string_view what,
                    std::exception_ptr error) const;
-  // The observer for this adaptor's proxy: the registry's (if any), and the adaptor's own
-  // record of acknowledged commands (stateful capabilities).
-  std::shared_ptr<planet::CallObserver> call_observer();
   // Throws planet::Error(denied) unless `current` came over the link the capability is bound to:
   // only a device's own device manager delivers its events.
   void check_own_link(const planet::Current& current) const;
@@ -114,6 +118,7 @@ class Adaptor : public Service {
   std::string path_;
   std::string device_;
   std::atomic<std::uint64_t> bound_connection_{0};
+  std::weak_ptr<planet::Link> bound_link_;  // under observer_mutex_
   mutable std::mutex observer_mutex_;
   std::shared_ptr<planet::CallObserver> call_observer_;
   DeviceState acknowledged_;

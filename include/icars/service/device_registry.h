@@ -94,6 +94,20 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
   std::optional<std::string> holder(const std::string& device_id) const;
   // Unregisters every device `principal` holds (its access entry was removed); returns how many.
   std::size_t forget_holder(const std::string& principal);
+  // One device as the registry holds it (what a SharedDirectory shares).
+  struct DeviceView {
+    df::DeviceInfo info;
+    std::uint64_t connection_id = 0;  // its manager's link; 0: not connected
+    std::vector<std::shared_ptr<Adaptor>> services;
+  };
+  std::optional<DeviceView> view(const std::string& device_id) const;
+  std::vector<DeviceView> views() const;
+  // `fn(device_id)` runs after a device registered or moved to another link, lost its link, or
+  // was removed (unregistered, forgotten, its principal revoked); on the io thread, not
+  // blocking. Returns an id for remove_device_watcher.
+  std::uint64_t watch_devices(std::function<void(const std::string&)> fn) { return changes_.add(std::move(fn)); }
+  void remove_device_watcher(std::uint64_t id) { changes_.remove(id); }
+
   // The calls through every adaptor bound from now on are reported to `observer` (see
   // planet::CallObserver); null: none. Set it before devices register.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
@@ -122,6 +136,7 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
   mutable std::mutex mutex_;
   std::map<std::string, Registered> devices_;
   std::shared_ptr<planet::CallObserver> call_observer_;
+  Listeners<std::string> changes_;
   std::unique_ptr<asio::steady_timer> forget_timer_;  // runs while devices are disconnected
   std::chrono::steady_clock::time_point forget_at_{};  // when it fires; {}: not armed
   std::shared_ptr<const char> alive_ = std::make_shared<const char>('\0');

@@ -11,6 +11,7 @@
 #include "icars/planet/communicator.h"
 #include "icars/service/device_registry.h"
 #include "icars/service/service_container.h"
+#include "icars/service/shared_directory.h"
 
 namespace icars::service {
 
@@ -38,11 +39,22 @@ class ServiceFramework {
   ServiceContainer& container() { return container_; }
   DeviceRegistry& registry() { return *registry_; }
 
+  // One service directory over several servers (docs/distribution.md). share() lets other
+  // servers use the devices registered here (once; later calls do nothing); mirror() makes the
+  // devices `link`'s server shares services here, with this framework's adaptors, for as long
+  // as the framework lives. Not on the io thread.
+  void share();
+  DirectoryMirror& mirror(std::shared_ptr<planet::Peer> link, std::string name);
+  const std::vector<std::unique_ptr<DirectoryMirror>>& mirrors() const { return mirrors_; }
+
  private:
   planet::Communicator& communicator_;
   ServiceContainer container_;
+  AdaptorFactory adaptors_;  // for mirrors
   std::shared_ptr<DeviceRegistry> registry_;
   std::vector<std::unique_ptr<Composer>> composers_;
+  std::unique_ptr<SharedDirectory> shared_;
+  std::vector<std::unique_ptr<DirectoryMirror>> mirrors_;
 };
 
 }  // namespace icars::service

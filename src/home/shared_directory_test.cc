@@ -1,0 +1,242 @@
+// One service directory over two mediating servers (docs/distribution.md): devices register on
+// server A, which shares them; server B mirrors A's directory and its behaviors call the
+// devices' services and hear their events as if the devices had registered on B. Real PLANET
+// over loopback: A, B and a device manager each with their own communicator.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "icars/clock/wall_clock.h"
+#include "icars/device/device_manager.h"
+#include "icars/home/adaptors.h"
+#include "icars/home/behaviors.h"
+#include "icars/home/services.h"
+#include "icars/planet/publisher.h"
+#include "icars/server/mediating_server.h"
+#include "child_process.h"
+
+namespace icars::home {
+namespace {
+
+using namespace std::chrono_literals;
+namespace p = icars::planet;
+namespace s = icars::service;
+
+class FakeLight final : public LightServant {
+ public:
+  void set_power(bool on, const p::Current&) override { on_ = on; }
+  void set_intensity(std::int32_t percent, const p::Current&) override {
+    if (percent < 0 || percent > 100) throw OutOfRange("intensity", percent, 0, 100);
+    intensity_ = percent;
+  }
+  LightState state(const p::Current&) override { return {on_.load(), intensity_.load()}; }
+  bool on() const { return on_; }
+
+ private:
+  std::atomic<bool> on_{false};
+  std::atomic<std::int32_t> intensity_{100};
+};
+
+class FakeSofa final : public OccupancySensorServant {
+ public:
+  bool occupied(const p::Current&) override { return occupied_.load(); }
+  std::string furniture(const p::Current&) override { return "sofa"; }
+  void subscribe(OccupancyListenerPrx l, const p::Current&) override { events_.subscribe(l); }
+  void unsubscribe(OccupancyListenerPrx l, const p::Current&) override { events_.unsubscribe(l); }
+  void set(bool occupied) {
+    occupied_ = occupied;
+    events_.publish(OccupancyEvent{"sofa_sensor", "sofa", occupied, 0});
+  }
+  std::size_t subscribers() const { return events_.size(); }
+
+ private:
+  std::atomic<bool> occupied_{false};
+  p::Publisher<OccupancyEvent> events_{OccupancyListener::on_occupancy};
+};
+
+server::ServerOptions home_server() {
+  server::ServerOptions o;
+  o.adaptors = adaptors();
+  o.composers = {composer()};
+  o.behaviors = behavior_registry();
+  return o;
+}
+
+// A device manager with a light and a sofa sensor in the living room.
+struct Devices {
+  Devices() {
+    auto lamp = std::make_shared<device::Device>("lamp", "Lamp", "living_room");
+    lamp->add("light", light);
+    manager->add(lamp);
+    auto sensor = std::make_shared<device::Device>("sofa_sensor", "SofaOccupancy", "living_room");
+    sensor->add("occupancy", sofa);
+    manager->add(sensor);
+  }
+  std::shared_ptr<FakeLight> light = std::make_shared<FakeLight>();
+  std::shared_ptr<FakeSofa> sofa = std::make_shared<FakeSofa>();
+  std::unique_ptr<p::Communicator> side = std::make_unique<p::Communicator>();
+  std::unique_ptr<device::DeviceManager> manager = std::make_unique<device::DeviceManager>(*side);
+};
+
+class SharedDirectoryTest : public ::testing::Test {
+ protected:
+  SharedDirectoryTest() {
+    auto a_options = home_server();
+    a_options.share_devices = true;
+    a_ = std::make_unique<server::MediatingServer>(std::move(a_options));
+    a_port_ = a_->listen();
+    auto b_options = home_server();
+    b_options.device_peers = {{"A", "127.0.0.1", a_port_}};
+    b_ = std::make_unique<server::MediatingServer>(std::move(b_options));
+    b_->listen();
+  }
+
+  template <class T>
+  std::shared_ptr<T> on_b(const std::string& type) {
+    return b_->container().find_first<T>(s::ServiceQuery::of_type(type).available());
+  }
+  std::size_t available_on_b(const std::string& type) {
+    return b_->container().find(s::ServiceQuery::of_type(type).available()).size();
+  }
+
+  std::unique_ptr<server::MediatingServer> a_;
+  std::uint16_t a_port_ = 0;
+  std::unique_ptr<server::MediatingServer> b_;
+};
+
+TEST_F(SharedDirectoryTest, ADeviceRegisteredOnOneServerIsCalledAndHeardFromAnother) {
+  Devices devices;
+  devices.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(b_->wait_device_peers(30s));
+  ASSERT_TRUE(planet_test::wait_until(
+      [&] { return available_on_b("LightControl") == 1 && available_on_b("OccupancySensor") == 1; }, 30s));
+  // B's services are its own adaptors, with the device's attributes.
+  auto light = on_b<LightService>("LightControl");
+  ASSERT_NE(light, nullptr);
+  EXPECT_EQ(light->id(), "lamp.light");
+  EXPECT_EQ(light->attributes().room, "living_room");
+  EXPECT_EQ(light->attributes().device, "lamp");
+
+  // A command from B reaches the device through A, and counts there as acknowledged: the state
+  // an outage of the device would restore.
+  light->proxy().set_power(true);
+  EXPECT_TRUE(devices.light->on());
+  auto light_on_a = a_->container().find_first<LightService>(s::ServiceQuery::of_type("LightControl"));
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    const auto state = light_on_a->acknowledged_state();
+    return state.has("on") && state.get<bool>("on");
+  }, 30s));
+  // The device's typed exception reaches B as the device threw it.
+  try {
+    light->proxy().set_intensity(150);
+    FAIL() << "OutOfRange expected";
+  } catch (const OutOfRange& e) {
+    EXPECT_EQ(e.requested(), 150);
+  }
+
+  // The sofa's events reach B's subscribers, and A's still reach A's.
+  auto sofa = on_b<OccupancyService>("OccupancySensor");
+  ASSERT_NE(sofa, nullptr);
+  std::atomic<int> heard_on_b{0}, heard_on_a{0};
+  sofa->subscribe([&](const OccupancyEvent& e) { heard_on_b += e.occupied ? 1 : 0; });
+  a_->container().find_first<OccupancyService>(s::ServiceQuery::of_type("OccupancySensor"))
+      ->subscribe([&](const OccupancyEvent& e) { heard_on_a += e.occupied ? 1 : 0; });
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s));
+  devices.sofa->set(true);
+  EXPECT_TRUE(planet_test::wait_until([&] { return heard_on_b == 1 && heard_on_a == 1; }, 30s))
+      << "B heard " << heard_on_b << ", A heard " << heard_on_a;
+}
+
+TEST_F(SharedDirectoryTest, AMirroredServiceFollowsItsDeviceOutagesAndRegistrations) {
+  std::mutex mutex;
+  std::vector<std::string> device_events;
+  b_->container().watch_devices([&](const p::Event& e) {
+    std::lock_guard lock(mutex);
+    device_events.push_back(e.type() + " " + e.get<std::string>("device"));
+  });
+  auto devices = std::make_unique<Devices>();
+  devices->manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("OccupancySensor") == 1; }, 30s));
+  auto sofa = on_b<OccupancyService>("OccupancySensor");
+
+  // The device leaves A: it leaves B too.
+  devices->manager->set_online("sofa_sensor", false);
+  ASSERT_TRUE(planet_test::wait_until(
+      [&] { return b_->container().find(s::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
+  devices->manager->set_online("sofa_sensor", true);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("OccupancySensor") == 1; }, 30s));
+
+  // Its device manager dies: B's services stay, unavailable, and B is told; a new manager
+  // registers the same devices and B's same service objects work again.
+  auto light = on_b<LightService>("LightControl");
+  devices.reset();
+  ASSERT_TRUE(planet_test::wait_until([&] { return !light->available(); }, 30s));
+  {
+    std::lock_guard lock(mutex);
+    EXPECT_NE(std::find(device_events.begin(), device_events.end(), "DeviceLost lamp"), device_events.end());
+  }
+  EXPECT_THROW(light->proxy().set_power(true), p::Error);
+  Devices again;
+  again.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return light->available(); }, 30s));
+  light->proxy().set_power(true);
+  EXPECT_TRUE(again.light->on());
+  auto sofa_now = on_b<OccupancyService>("OccupancySensor");
+  std::atomic<int> heard{0};
+  sofa_now->subscribe([&](const OccupancyEvent&) { ++heard; });
+  ASSERT_TRUE(planet_test::wait_until([&] { return again.sofa->subscribers() == 2; }, 30s));
+  again.sofa->set(true);
+  EXPECT_TRUE(planet_test::wait_until([&] { return heard == 1; }, 30s));
+  std::lock_guard lock(mutex);
+  EXPECT_NE(std::find(device_events.begin(), device_events.end(), "DeviceBack lamp"), device_events.end());
+}
+
+TEST_F(SharedDirectoryTest, WhenTheMirroringServerGoesItsSubscriptionsGoFromTheDevices) {
+  Devices devices;
+  devices.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("OccupancySensor") == 1; }, 30s));
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s));
+  b_.reset();
+  // A's own subscription stays; the relay's is withdrawn from the device.
+  EXPECT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 1; }, 30s))
+      << devices.sofa->subscribers() << " subscribers";
+  auto light_on_a = a_->container().find_first<LightService>(s::ServiceQuery::of_type("LightControl").available());
+  ASSERT_NE(light_on_a, nullptr);
+  light_on_a->proxy().set_power(true);
+  EXPECT_TRUE(devices.light->on());
+}
+
+TEST_F(SharedDirectoryTest, AServerWithALocalDeviceOfTheSameIdKeepsItsOwn) {
+  Devices local;
+  local.manager->connect("127.0.0.1", b_->endpoint().port);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("LightControl") == 1; }, 30s));
+  ASSERT_TRUE(b_->wait_device_peers(30s));
+  Devices on_a;
+  on_a.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return on_a.sofa->subscribers() == 1; }, 30s));
+  // A's lamp is not mirrored over B's own: a call on B reaches B's lamp.
+  on_b<LightService>("LightControl")->proxy().set_power(true);
+  EXPECT_TRUE(local.light->on());
+  EXPECT_FALSE(on_a.light->on());
+  EXPECT_EQ(b_->container().find(s::ServiceQuery::of_type("LightControl")).size(), 1u);
+}
+
+TEST_F(SharedDirectoryTest, ADeviceWhoseIdAMirroredDeviceHoldsIsRefusedWithTheReason) {
+  Devices on_a;
+  on_a.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("LightControl") == 1; }, 30s));
+  Devices local;
+  local.manager->connect("127.0.0.1", b_->endpoint().port);
+  ASSERT_TRUE(planet_test::wait_until([&] { return !local.manager->last_error().empty(); }, 30s));
+  EXPECT_NE(local.manager->last_error().find("exists already on this server"), std::string::npos)
+      << local.manager->last_error();
+  on_b<LightService>("LightControl")->proxy().set_power(true);
+  EXPECT_TRUE(on_a.light->on());
+}
+
+}  // namespace
+}  // namespace icars::home
