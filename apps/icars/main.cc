@@ -18,6 +18,13 @@
 //   icars replay TRACE --world HOUSE [--policy POLICY] [--http HOST:PORT]
 //       shows a recorded trace in the live dashboard, with a time slider (docs/dashboard.md).
 //   --http HOST:PORT (run): the live dashboard of the run (docs/dashboard.md).
+//   icars serve [--name NAME] [--listen HOST:PORT] [--peer NAME=HOST:PORT]... [--peers FILE]
+//               [--policy POLICY [--world HOUSE] [--until HH:MM]] [--trace FILE]
+//       one server of a logical mediating server of several processes (docs/distribution.md):
+//       shares its devices with its peers, uses theirs, hosts the behavior subtrees their
+//       policies place on it (host="NAME"); the one given --policy coordinates.
+//   icars merge-traces TRACE... [--output FILE]
+//       the traces of several servers (icars serve --trace) as one timeline.
 //   icars token NAME [--may-call PATTERN...] [--devices PATTERN...] [--max-devices N]
 //       makes a token for a device manager or agent: prints the token (for its --token-file) and
 //       the entry to add to the server's --access file (docs/security.md).
@@ -35,8 +42,10 @@
 #include "icars/home/sim/sim_devices.h"
 #include "icars/server/plugin.h"
 #include "mediator.h"
+#include "merge_traces.h"
 #include "registries.h"
 #include "security_options.h"
+#include "serve.h"
 
 namespace b = icars::behavior;
 namespace c = icars::control;
@@ -239,6 +248,48 @@ int main(int argc, char** argv) {
         ->allow_extra_args(false);
   }
 
+  icars::app::ServeOptions serve;
+  auto* serve_cmd = app.add_subcommand(
+      "serve", "one server of a logical mediating server of several processes (docs/distribution.md)");
+  serve_cmd->add_option("--name", serve.name, "this server's name, as policies (host=\"NAME\") and peers name it")
+      ->capture_default_str();
+  serve_cmd->add_option("--listen", serve.listen, "where device managers and peers connect, host:port")
+      ->capture_default_str();
+  serve_cmd->add_option("--peer", serve.peers,
+                        "another server, NAME=HOST:PORT: its devices are services here, and subtrees placed "
+                        "on host NAME run there (repeatable)");
+  serve_cmd->add_option("--peers", serve.peers_file, "a file of peers, one NAME=HOST:PORT per line")
+      ->check(CLI::ExistingFile);
+  serve_cmd->add_option("--policy", serve.policy, "the policy this server coordinates (a file, or a name in --policies)");
+  serve_cmd->add_option("--policies", serve.policy_dir, "the policy repository directory")->capture_default_str();
+  serve_cmd->add_option("--world", serve.world, "the house the policy runs on: its names are checked, --until counts from its start")
+      ->check(CLI::ExistingFile);
+  serve_cmd->add_option("--wait-for", serve.wait_for,
+                        "start the policy once these devices (ids) are here or at a peer (at most 60 s)")
+      ->delimiter(',');
+  serve_cmd->add_option("--until", serve.until, "stop at this simulated time of day (HH:MM; needs --policy and --world)");
+  serve_cmd->add_option("--days", serve.days, "with --until: stop at its N-th time after the house's start")
+      ->check(CLI::Range(1, 3650));
+  serve_cmd->add_flag("--wall-clock", serve.wall_clock,
+                      "behaviors count wall-clock time (a real home) instead of following the simulated house's clock");
+  serve_cmd->add_option("--trace", serve.trace_file, "write a JSON-lines trace to this file (each record names this server)");
+  serve_cmd->add_flag("--quiet", serve.quiet, "no timeline on stdout");
+  serve_cmd->add_option("--token-file", serve.token_file, "the token this server presents to its peers (docs/security.md)")
+      ->check(CLI::ExistingFile);
+  serve_cmd->add_option("--access", serve.access_file,
+                        "access file: who may connect and what each may call; peers need /sf/directory, "
+                        "/sf/relay/* and /control/behavior_host (docs/distribution.md)")
+      ->check(CLI::ExistingFile);
+  icars::app::add_tls_options(*serve_cmd, serve.tls, icars::app::Side::server);
+  serve_cmd->add_option("--plugin", serve.plugins, "a plugin (shared library) adding behavior, adaptor and composer types")
+      ->allow_extra_args(false);
+
+  std::vector<std::string> merge_files;
+  std::string merge_output;
+  auto* merge_cmd = app.add_subcommand("merge-traces", "merge the traces of several servers into one timeline");
+  merge_cmd->add_option("trace", merge_files, "trace files (JSON lines)")->required()->check(CLI::ExistingFile);
+  merge_cmd->add_option("--output,-o", merge_output, "write here instead of stdout");
+
   std::string token_name;
   std::vector<std::string> token_paths;
   auto* token_cmd = app.add_subcommand(
@@ -277,6 +328,8 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (*behaviors_cmd) return list_behaviors(plugins);
+  if (*serve_cmd) return icars::app::serve(serve);
+  if (*merge_cmd) return icars::app::merge_traces(merge_files, merge_output);
   if (*replay_cmd) return icars::app::replay(replay_trace, replay_world, replay_policy, replay_http);
   return icars::app::run(run);
 }

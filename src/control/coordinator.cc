@@ -559,7 +559,14 @@ void Coordinator::fire(const Selected& selected, const std::string& trigger, con
   record("transition",
          fmt::format("{}{} -> {} {}{}", region ? region->spec->name + ": " : "", from, t.target, trigger,
                      reason.empty() ? "" : " (" + reason + ")"),
-         {{"from", from}, {"to", t.target}, {"event", t.after ? trigger : t.event}, {"declared_in", selected.source->spec->name}});
+         reason.empty()
+             ? std::vector<std::pair<std::string, b::TraceValue>>{{"from", from}, {"to", t.target},
+                                                                  {"event", t.after ? trigger : t.event},
+                                                                  {"declared_in", selected.source->spec->name}}
+             : std::vector<std::pair<std::string, b::TraceValue>>{{"from", from}, {"to", t.target},
+                                                                  {"event", t.after ? trigger : t.event},
+                                                                  {"declared_in", selected.source->spec->name},
+                                                                  {"reason", reason}});
   if (leave) exit(*leave);
   enter_path(entry, 0);
   complete_finals();

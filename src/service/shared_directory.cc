@@ -43,6 +43,10 @@ std::vector<std::byte> rewrite_references(std::span<const std::byte> args, F rep
       continue;
     }
     if (code == p::TypeCode::valued) break;
+    if (code == p::TypeCode::stream) {
+      throw p::Error(p::ErrorKind::unimplemented,
+                     "a stream cannot be passed through another server: open it on the server the device registered on");
+    }
     const auto before = r.rest();
     p::skip_value(r, descriptor);
     w.raw(before.first(before.size() - r.rest().size()));
@@ -315,8 +319,16 @@ p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak,
   const bool unsubscribing = call.method == "unsubscribe";
   if (!used.empty() && !unsubscribing) state->keep_subscription(used, args);
   state.reset();  // not held across the call
+  const std::string method = call.method;
   auto result = co_await proxy.async_call_raw(call.method, std::move(args), p::CallMode::at_most_once,
                                               asio::use_awaitable);
+  // A stream the device opened belongs to this server's link, not to the caller's.
+  if (!result.empty() && std::to_integer<std::uint8_t>(result.front()) == static_cast<std::uint8_t>(p::TypeCode::stream)) {
+    throw p::Error(p::ErrorKind::unimplemented,
+                   fmt::format("{} returns a stream, which cannot be passed through another server: use {} on "
+                               "the server it registered on",
+                               method, service));
+  }
   if (unsubscribing && !used.empty()) {
     if (auto again = weak.lock()) again->drop_listeners(used);
   }

@@ -89,7 +89,7 @@ class ObservedCall {
  private:
   std::shared_ptr<CallObserver> observer_;
   std::string path_;
-  std::string_view method_;  // an Operation's name: a string literal
+  std::string method_;  // its own copy: a relay's method name lives only as long as its call
   std::mutex mutex_;
   std::uint32_t id_ = 0;
   bool started_ = false;
