@@ -17,6 +17,7 @@
 #include "icars/home/services.h"
 #include "icars/planet/publisher.h"
 #include "icars/server/mediating_server.h"
+#include "icars/service/shared_directory.h"
 #include "child_process.h"
 
 namespace icars::home {
@@ -52,6 +53,11 @@ class FakeSofa final : public OccupancySensorServant {
     events_.publish(OccupancyEvent{"sofa_sensor", "sofa", occupied, 0});
   }
   std::size_t subscribers() const { return events_.size(); }
+  std::vector<std::string> subscriber_paths() const {
+    std::vector<std::string> out;
+    for (const auto& s : events_.subscribers()) out.push_back(s.path);
+    return out;
+  }
 
  private:
   std::atomic<bool> occupied_{false};
@@ -193,6 +199,72 @@ TEST_F(SharedDirectoryTest, AMirroredServiceFollowsItsDeviceOutagesAndRegistrati
   EXPECT_TRUE(planet_test::wait_until([&] { return heard == 1; }, 30s));
   std::lock_guard lock(mutex);
   EXPECT_NE(std::find(device_events.begin(), device_events.end(), "DeviceBack lamp"), device_events.end());
+}
+
+// Another client of A (a device manager of its own, or anyone who may call /sf/listeners/*)
+// cannot speak for a shared device: events sent to a relay listener count only from the
+// device's own link. Malformed or unknown calls to a relay get a clear error and the link
+// stays up.
+TEST_F(SharedDirectoryTest, RelaysRefuseImpostorsAndMalformedCallsClearly) {
+  Devices devices;
+  devices.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s));
+  std::string relay_listener;
+  for (const auto& path : devices.sofa->subscriber_paths()) {
+    if (path.starts_with(std::string(s::kRelayListenerPrefix))) relay_listener = path;
+  }
+  ASSERT_FALSE(relay_listener.empty());
+  auto sofa = on_b<OccupancyService>("OccupancySensor");
+  std::atomic<int> heard{0};
+  sofa->subscribe([&](const OccupancyEvent&) { ++heard; });
+
+  p::Communicator impostor;
+  auto link = impostor.connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(link->wait_connected(20s)) << link->last_error();
+  // A forged event on the relay listener: refused (a two-way call says why), never forwarded.
+  const p::Operation<void(OccupancyEvent)> as_call{"on_occupancy"};
+  try {
+    p::Proxy(impostor, link, relay_listener).call(as_call, OccupancyEvent{"sofa_sensor", "sofa", true, 0});
+    FAIL() << "a forged event was accepted";
+  } catch (const p::Error& e) {
+    EXPECT_EQ(e.kind(), p::ErrorKind::denied) << e.what();
+  }
+  p::Proxy(impostor, link, relay_listener).notify(OccupancyListener::on_occupancy,
+                                                  OccupancyEvent{"sofa_sensor", "sofa", true, 0});
+  // The device's own event arrives; the forged one never did (the link delivers in order).
+  devices.sofa->set(true);
+  ASSERT_TRUE(planet_test::wait_until([&] { return heard >= 1; }, 30s));
+  EXPECT_EQ(heard.load(), 1);
+
+  // A call to a relay with arguments of the wrong type, and an unknown operation.
+  const auto relay = std::string(s::kRelayPrefix) + "lamp.light";
+  const p::Operation<void(std::string)> wrong{"set_power"};
+  try {
+    p::Proxy(impostor, link, relay).call(wrong, "yes");
+    FAIL();
+  } catch (const p::Error& e) {
+    EXPECT_EQ(e.kind(), p::ErrorKind::bad_data) << e.what();
+    EXPECT_NE(std::string(e.what()).find("argument 1 of 'set_power'"), std::string::npos) << e.what();
+  }
+  const p::Operation<void()> unknown{"explode"};
+  try {
+    p::Proxy(impostor, link, relay).call(unknown);
+    FAIL();
+  } catch (const p::Error& e) {
+    EXPECT_EQ(e.kind(), p::ErrorKind::unimplemented) << e.what();
+  }
+  // A relay whose device's manager is gone says so.
+  devices.manager.reset();
+  devices.side.reset();
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("LightControl") == 0; }, 30s));
+  try {
+    p::Proxy(impostor, link, relay).call(Light::set_power, true);
+    FAIL();
+  } catch (const p::Error& e) {
+    EXPECT_EQ(e.kind(), p::ErrorKind::disconnected) << e.what();
+    EXPECT_NE(std::string(e.what()).find("device lamp is not connected"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(link->connect_count(), 1u);
 }
 
 TEST_F(SharedDirectoryTest, WhenTheMirroringServerGoesItsSubscriptionsGoFromTheDevices) {
