@@ -4,10 +4,11 @@
 // server comes back.
 //
 //   icars-device-manager --house houses/paper_house.xml --server 127.0.0.1:7000 [--speedup 60]
+//                        [--server HOST:PORT --failover-after SECONDS]
 //                        [--effects FILE] [--epoch UNIX_MS] [--state FILE]
 //
 // Prints "REGISTERED <round> <devices>" after each complete registration round (tests wait on
-// it), and "LINK DOWN <reason>" whenever the server cannot be reached or denies the connection. With --effects, writes one JSON line per command a device executed (its effect, with the
+// it), "SERVER <host:port>" when it moved to another of several --server, and "LINK DOWN <reason>" whenever the server cannot be reached or denies the connection. With --effects, writes one JSON line per command a device executed (its effect, with the
 // request id of the call), the device side of the record `icars run --trace` keeps of the
 // commands it sent. With --epoch, device managers of one simulation started (or restarted) at
 // different times run on the same simulated time. With --state, the simulated actuators and
@@ -37,7 +38,8 @@ namespace home = icars::home;
 int main(int argc, char** argv) {
   CLI::App app{"ICARS device manager for a simulated house"};
   std::string house_file;
-  std::string server = "127.0.0.1:7000";
+  std::vector<std::string> servers;
+  double failover_after_s = 10;
   double speedup = 1.0;
   std::vector<std::string> only;
   bool engines = true;
@@ -45,7 +47,14 @@ int main(int argc, char** argv) {
   std::string pun;
   std::string effects_file;
   app.add_option("--house", house_file, "house file (docs/house.md)")->required()->check(CLI::ExistingFile);
-  app.add_option("--server", server, "the mediating server, host:port");
+  app.add_option("--server", servers,
+                 "the mediating server, host:port (default 127.0.0.1:7000); several: servers of one logical "
+                 "mediating server, moved to in turn when the current one is unreachable (docs/distribution.md)")
+      ->allow_extra_args(false);
+  app.add_option("--failover-after", failover_after_s,
+                 "with several --server: seconds the current one may be unreachable before moving to the next")
+      ->check(CLI::Range(0.1, 3600.0))
+      ->capture_default_str();
   app.add_option("--speedup", speedup, "simulated seconds per wall-clock second")->check(CLI::PositiveNumber);
   app.add_option("--devices", only, "host only these device ids (default: all)")->delimiter(',');
   app.add_flag("!--no-engines", engines, "do not host the speech and vision engines");
@@ -88,14 +97,17 @@ int main(int argc, char** argv) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";
     return 2;
   }
-  icars::planet::Endpoint endpoint;
-  try {
-    endpoint = icars::planet::parse_endpoint(server);
-  } catch (const std::invalid_argument& e) {
-    std::cerr << "icars-device-manager: --server " << e.what() << "\n";
-    return 2;
+  if (servers.empty()) servers.push_back("127.0.0.1:7000");
+  std::vector<icars::device::DeviceManager::ServerAddress> addresses;
+  for (const auto& server : servers) {
+    try {
+      const auto endpoint = icars::planet::parse_endpoint(server);
+      addresses.push_back({endpoint.host, endpoint.port});
+    } catch (const std::invalid_argument& e) {
+      std::cerr << "icars-device-manager: --server " << e.what() << "\n";
+      return 2;
+    }
   }
-  const auto& [host, port] = endpoint;
 
   // Every line is flushed at once: the file is complete whenever the process stops.
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> effects(nullptr, &std::fclose);
@@ -190,7 +202,11 @@ int main(int argc, char** argv) {
               << ' ' << state->path().string() << std::endl;
   }
   try {
-    simulation->start(host, port);
+    if (addresses.size() == 1) {
+      simulation->start(addresses.front().host, addresses.front().port);
+    } else {
+      simulation->start(addresses, std::chrono::milliseconds(static_cast<std::int64_t>(failover_after_s * 1000)));
+    }
   } catch (const std::exception& e) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";
     return 2;
@@ -202,11 +218,17 @@ int main(int argc, char** argv) {
   std::atomic<bool> stopping{false};
   std::thread reporter([&] {
     std::uint64_t reported = 0;
+    std::uint64_t failovers = 0;
     std::string link_error;
     while (!stopping) {
       if (manager.wait_registered(reported + 1, std::chrono::milliseconds(200))) {
         reported = manager.registration_rounds();
         std::cout << "REGISTERED " << reported << ' ' << manager.devices().size() << std::endl;
+      }
+      // The server it moved to (several --server), once per move.
+      if (const auto moves = manager.failovers(); moves != failovers) {
+        failovers = moves;
+        std::cout << "SERVER " << manager.current_server() << std::endl;
       }
       // Why the link to the server is down (denied, TLS failure, unreachable), once per change.
       if (const auto& peer = manager.peer(); peer && !peer->is_connected()) {

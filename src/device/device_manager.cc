@@ -13,16 +13,26 @@ namespace icars::device {
 DeviceManager::DeviceManager(planet::Communicator& communicator) : communicator_(communicator) {
   listener_ = communicator_.connections().add_listener([this](const planet::ConnectionEvent& e) {
     // Only the client link to the server carries registrations.
-    if (e.peer && e.peer == peer_ &&
-        (e.kind == planet::LinkEventKind::connected ||
-         e.kind == planet::LinkEventKind::reconnected)) {
+    if (!e.peer || e.peer != peer_) return;
+    if (e.kind == planet::LinkEventKind::connected || e.kind == planet::LinkEventKind::reconnected) {
+      if (failover_timer_) failover_timer_->cancel();
       register_all(e.connection);
+    } else if (e.kind == planet::LinkEventKind::disconnected) {
+      arm_failover();
     }
   });
 }
 
 DeviceManager::~DeviceManager() {
   communicator_.connections().remove_listener(listener_);
+  if (failover_timer_ && !communicator_.in_io_thread() && !communicator_.io().stopped()) {
+    auto cancelled = std::make_shared<std::promise<void>>();
+    asio::post(communicator_.io(), [this, cancelled] {
+      failover_timer_->cancel();
+      cancelled->set_value();
+    });
+    cancelled->get_future().wait_for(std::chrono::seconds(10));
+  }
   // What add() and set_online() left for the io thread checks alive_ first; once the io thread
   // has run the no-op below, none of it is running or will use this manager.
   alive_.reset();
@@ -124,10 +134,80 @@ void DeviceManager::connect(const std::string& host, std::uint16_t port,
   connecting_ = true;
   std::promise<void> stored;
   asio::post(communicator_.io(), [&] {
-    peer_ = communicator_.connect(host, port, policy);
+    auto peer = communicator_.connect(host, port, policy);
+    std::lock_guard lock(mutex_);
+    peer_ = std::move(peer);
     stored.set_value();
   });
   stored.get_future().wait();
+  std::lock_guard lock(mutex_);
+  server_ = host + ":" + std::to_string(port);
+}
+
+void DeviceManager::connect(std::vector<ServerAddress> servers, std::chrono::milliseconds failover_after,
+                            planet::ReconnectPolicy policy) {
+  if (servers.empty()) throw std::invalid_argument("a device manager needs a server to connect to");
+  if (servers.size() == 1) return connect(servers.front().host, servers.front().port, policy);
+  connecting_ = true;
+  std::promise<void> stored;
+  asio::post(communicator_.io(), [&] {
+    servers_ = std::move(servers);
+    failover_after_ = failover_after;
+    policy_ = policy;
+    failover_timer_ = std::make_unique<asio::steady_timer>(communicator_.io());
+    current_ = 0;
+    auto peer = communicator_.connect(servers_[0].host, servers_[0].port, policy_);
+    {
+      std::lock_guard lock(mutex_);
+      peer_ = std::move(peer);
+      server_ = servers_[0].host + ":" + std::to_string(servers_[0].port);
+    }
+    arm_failover();  // also when the first server never answers
+    stored.set_value();
+  });
+  stored.get_future().wait();
+}
+
+void DeviceManager::arm_failover() {
+  if (!failover_timer_ || servers_.size() < 2) return;
+  failover_timer_->expires_after(failover_after_);
+  failover_timer_->async_wait([this, alive = std::weak_ptr(alive_)](const std::error_code& ec) {
+    if (ec || alive.expired()) return;
+    if (peer_ && peer_->is_connected()) return;
+    fail_over();
+  });
+}
+
+void DeviceManager::fail_over() {
+  const auto from = server_;
+  if (peer_) peer_->stop();
+  current_ = (current_ + 1) % servers_.size();
+  const auto& next = servers_[current_];
+  auto peer = communicator_.connect(next.host, next.port, policy_);
+  std::string to = next.host + ":" + std::to_string(next.port);
+  communicator_.log().warn("server {} unreachable for {} ms: moving to {}", from, failover_after_.count(), to);
+  {
+    std::lock_guard lock(mutex_);
+    peer_ = std::move(peer);
+    server_ = std::move(to);
+    ++failovers_;
+  }
+  arm_failover();
+}
+
+std::shared_ptr<planet::Peer> DeviceManager::peer() const {
+  std::lock_guard lock(mutex_);
+  return peer_;
+}
+
+std::string DeviceManager::current_server() const {
+  std::lock_guard lock(mutex_);
+  return server_;
+}
+
+std::uint64_t DeviceManager::failovers() const {
+  std::lock_guard lock(mutex_);
+  return failovers_;
 }
 
 void DeviceManager::register_all(std::shared_ptr<planet::Connection> connection) {

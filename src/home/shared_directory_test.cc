@@ -267,6 +267,48 @@ TEST_F(SharedDirectoryTest, RelaysRefuseImpostorsAndMalformedCallsClearly) {
   EXPECT_EQ(link->connect_count(), 1u);
 }
 
+// A device manager given two servers moves to the second when the first dies; there its
+// devices take the place of the mirrored ones, and a third server that mirrors both follows
+// them to the server they are on now.
+TEST_F(SharedDirectoryTest, ADeviceManagerMovesToAnotherServerAndEveryServerFollows) {
+  b_->services().share();  // B shares what registers on it, as every icars serve does
+  auto c_options = home_server();
+  c_options.device_peers = {{"A", "127.0.0.1", a_port_}, {"B", "127.0.0.1", b_->endpoint().port}};
+  server::MediatingServer c(std::move(c_options));
+  c.listen();
+  auto b_options_port = b_->endpoint().port;
+  Devices devices;
+  devices.manager->connect({{"127.0.0.1", a_port_}, {"127.0.0.1", b_options_port}}, 500ms);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("LightControl") == 1; }, 30s));
+  const auto available_on_c = [&] {
+    return c.container().find(s::ServiceQuery::of_type("LightControl").available()).size();
+  };
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_c() == 1; }, 30s));
+  EXPECT_EQ(devices.manager->current_server(), "127.0.0.1:" + std::to_string(a_port_));
+
+  a_.reset();  // A dies with its links
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    return devices.manager->failovers() == 1 && b_->services().registry().view("lamp").has_value() &&
+           available_on_b("LightControl") == 1;
+  }, 30s)) << devices.manager->last_error();
+  EXPECT_EQ(devices.manager->current_server(), "127.0.0.1:" + std::to_string(b_options_port));
+  on_b<LightService>("LightControl")->proxy().set_power(true);
+  EXPECT_TRUE(devices.light->on());
+  // C held the lamp through A (gone); now through B.
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_c() == 1; }, 30s));
+  c.container().find_first<LightService>(s::ServiceQuery::of_type("LightControl").available())->proxy().set_power(false);
+  EXPECT_FALSE(devices.light->on());
+  // The sofa's events reach C through B.
+  auto sofa = c.container().find_first<OccupancyService>(s::ServiceQuery::of_type("OccupancySensor").available());
+  ASSERT_NE(sofa, nullptr);
+  std::atomic<int> heard{0};
+  sofa->subscribe([&](const OccupancyEvent&) { ++heard; });
+  ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s))
+      << devices.sofa->subscribers();
+  devices.sofa->set(true);
+  EXPECT_TRUE(planet_test::wait_until([&] { return heard == 1; }, 30s));
+}
+
 TEST_F(SharedDirectoryTest, WhenTheMirroringServerGoesItsSubscriptionsGoFromTheDevices) {
   Devices devices;
   devices.manager->connect("127.0.0.1", a_port_);
@@ -297,17 +339,18 @@ TEST_F(SharedDirectoryTest, AServerWithALocalDeviceOfTheSameIdKeepsItsOwn) {
   EXPECT_EQ(b_->container().find(s::ServiceQuery::of_type("LightControl")).size(), 1u);
 }
 
-TEST_F(SharedDirectoryTest, ADeviceWhoseIdAMirroredDeviceHoldsIsRefusedWithTheReason) {
+TEST_F(SharedDirectoryTest, ADeviceRegisteringHereTakesThePlaceOfAMirroredOneOfTheSameId) {
   Devices on_a;
   on_a.manager->connect("127.0.0.1", a_port_);
   ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("LightControl") == 1; }, 30s));
   Devices local;
   local.manager->connect("127.0.0.1", b_->endpoint().port);
-  ASSERT_TRUE(planet_test::wait_until([&] { return !local.manager->last_error().empty(); }, 30s));
-  EXPECT_NE(local.manager->last_error().find("exists already on this server"), std::string::npos)
-      << local.manager->last_error();
+  ASSERT_TRUE(local.manager->wait_registered(1, 30s)) << local.manager->last_error();
+  ASSERT_TRUE(b_->services().registry().view("lamp").has_value());
   on_b<LightService>("LightControl")->proxy().set_power(true);
-  EXPECT_TRUE(on_a.light->on());
+  EXPECT_TRUE(local.light->on());
+  EXPECT_FALSE(on_a.light->on());
+  EXPECT_EQ(b_->container().find(s::ServiceQuery::of_type("LightControl")).size(), 1u);
 }
 
 }  // namespace

@@ -88,6 +88,20 @@ void DeviceRegistry::register_device(const df::DeviceInfo& device, const planet:
                                "do not list it",
                                holder, device.id));
   }
+  // A device another server shared holds the ids here: the device registering here takes them.
+  std::function<bool(const std::string&)> make_room;
+  {
+    std::lock_guard lock(mutex_);
+    if (!devices_.contains(device.id)) make_room = make_room_;
+  }
+  if (make_room) {
+    for (const auto& c : device.capabilities) {
+      if (container_.get(device.id + "." + c.name)) {
+        make_room(device.id);
+        break;
+      }
+    }
+  }
   std::vector<std::shared_ptr<Adaptor>> services;
   bool back = false;
   {
@@ -280,6 +294,11 @@ std::size_t DeviceRegistry::forget_holder(const std::string& principal) {
     communicator_.log().warn("forgot {} devices of principal '{}'", forgotten.size(), principal);
   }
   return forgotten.size();
+}
+
+void DeviceRegistry::set_make_room(std::function<bool(const std::string&)> fn) {
+  std::lock_guard lock(mutex_);
+  make_room_ = std::move(fn);
 }
 
 void DeviceRegistry::set_call_observer(std::shared_ptr<planet::CallObserver> observer) {

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <asio/post.hpp>
+#include <algorithm>
 #include <atomic>
 #include <set>
 #include <variant>
@@ -35,7 +36,8 @@ struct DirectoryMirror::State : std::enable_shared_from_this<State> {
   mutable std::mutex mutex;
   mutable std::condition_variable synced_changed;
   std::map<std::string, Mirrored> devices;
-  std::set<std::string> refused;          // ids a local service holds: not mirrored
+  std::set<std::string> refused;          // ids another holder has: not mirrored now
+  std::function<bool(const std::string&)> make_room;
   std::uint64_t synced_over = 0;          // the connection the directory was read over; 0: not synced
   // Changes that arrived over the current link before the directory's reply was handled (the
   // reply's handler is posted, the next message is not): applied after it, in order.
@@ -133,7 +135,8 @@ void DirectoryMirror::State::apply(const df::SharedDevice& shared) {
   bool known = false;
   {
     std::lock_guard lock(mutex);
-    if (refused.contains(info.id)) return;
+    // Given up to another holder: taken back when told of it connected and the id is free.
+    if (refused.contains(info.id) && shared.link == 0) return;
     auto it = devices.find(info.id);
     if (it != devices.end()) {
       const auto& had = it->second.info.capabilities;
@@ -163,19 +166,31 @@ void DirectoryMirror::State::apply(const df::SharedDevice& shared) {
       }
       m.services.push_back(std::move(adaptor));
     }
-    // A local device (or another mirror's) holds the id: this server keeps its own.
+    // Another mirror holding the id gives it up if its device is gone and this one's is here (a
+    // device manager that moved to this mirror's server); a device registered on this server
+    // keeps it.
+    std::function<bool(const std::string&)> room;
+    {
+      std::lock_guard lock(mutex);
+      room = make_room;
+    }
+    const bool taken = std::any_of(m.services.begin(), m.services.end(),
+                                   [&](const auto& s) { return container.get(s->id()) != nullptr; });
+    if (taken && shared.link != 0 && room) room(info.id);
     for (std::size_t i = 0; i < m.services.size(); ++i) {
       try {
         container.add(m.services[i]);
       } catch (const std::invalid_argument& e) {
         for (std::size_t j = 0; j < i; ++j) container.remove(m.services[j]->id());
         std::lock_guard lock(mutex);
-        refused.insert(info.id);
-        communicator.log().warn("device {} of {} is not mirrored: {}", info.id, name, e.what());
+        if (refused.insert(info.id).second) {
+          communicator.log().warn("device {} of {} is not mirrored: {}", info.id, name, e.what());
+        }
         return;
       }
     }
     std::lock_guard lock(mutex);
+    refused.erase(info.id);
     devices.emplace(info.id, std::move(m));
   }
   std::vector<std::shared_ptr<Adaptor>> to_bind, to_unbind;
@@ -282,6 +297,31 @@ DirectoryMirror::~DirectoryMirror() {
     for (const auto& [id, m] : state_->devices) ids.push_back(id);
   }
   for (const auto& id : ids) state_->remove(id, false);
+}
+
+bool DirectoryMirror::yield(const std::string& device_id, bool only_if_disconnected) {
+  State::Mirrored m;
+  {
+    std::lock_guard lock(state_->mutex);
+    auto it = state_->devices.find(device_id);
+    if (it == state_->devices.end()) return false;
+    if (only_if_disconnected && it->second.link != 0) return false;
+    m = std::move(it->second);
+    state_->devices.erase(it);
+    state_->refused.insert(device_id);
+  }
+  for (const auto& s : m.services) {
+    s->unbind();
+    s->retire();
+    state_->container.remove(s->id());
+  }
+  state_->communicator.log().info("device {} of {} gives way to another holder", device_id, state_->name);
+  return true;
+}
+
+void DirectoryMirror::set_make_room(std::function<bool(const std::string&)> fn) {
+  std::lock_guard lock(state_->mutex);
+  state_->make_room = std::move(fn);
 }
 
 const std::string& DirectoryMirror::name() const { return state_->name; }

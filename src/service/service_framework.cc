@@ -17,7 +17,14 @@ ServiceFramework::ServiceFramework(planet::Communicator& communicator, AdaptorFa
 
 ServiceFramework::~ServiceFramework() {
   communicator_.adapter().remove(device::kRegistryPath);
-  mirrors_.clear();
+  registry_->set_make_room(nullptr);
+  std::vector<std::shared_ptr<DirectoryMirror>> mirrors;
+  {
+    std::lock_guard lock(mirrors_mutex_);
+    mirrors.swap(mirrors_);
+  }
+  for (const auto& m : mirrors) m->set_make_room(nullptr);
+  mirrors.clear();  // a make-room request in progress on the io thread holds its mirrors until it ends
   shared_.reset();
   composers_.clear();
   registry_.reset();  // the last owner: stops listening to connection events
@@ -28,9 +35,32 @@ void ServiceFramework::share() {
 }
 
 DirectoryMirror& ServiceFramework::mirror(std::shared_ptr<planet::Peer> link, std::string name) {
-  mirrors_.push_back(std::make_unique<DirectoryMirror>(communicator_, container_, adaptors_, std::move(link),
-                                                       std::move(name)));
+  auto mirror = std::make_shared<DirectoryMirror>(communicator_, container_, adaptors_, std::move(link),
+                                                  std::move(name));
+  // Who holds a device id when several could (docs/distribution.md): a device registered here
+  // before any mirrored one; a connected device before a disconnected one of another mirror.
+  const auto* claimant = mirror.get();
+  mirror->set_make_room([this, claimant](const std::string& device_id) {
+    for (const auto& other : mirrors()) {
+      if (other.get() != claimant && other->yield(device_id, /*only_if_disconnected=*/true)) return true;
+    }
+    return false;
+  });
+  std::lock_guard lock(mirrors_mutex_);
+  if (mirrors_.empty()) {
+    registry_->set_make_room([this](const std::string& device_id) {
+      bool yielded = false;
+      for (const auto& m : mirrors()) yielded |= m->yield(device_id, /*only_if_disconnected=*/false);
+      return yielded;
+    });
+  }
+  mirrors_.push_back(std::move(mirror));
   return *mirrors_.back();
+}
+
+std::vector<std::shared_ptr<DirectoryMirror>> ServiceFramework::mirrors() const {
+  std::lock_guard lock(mirrors_mutex_);
+  return mirrors_;
 }
 
 }  // namespace icars::service

@@ -6,6 +6,8 @@
 // anyone restarting anything. Devices never talk to each other: the server calls them.
 #pragma once
 
+#include <asio/steady_timer.hpp>
+
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -48,7 +50,21 @@ class DeviceManager {
 
   // Connects to the server and keeps the link up; every (re)connection registers all devices.
   void connect(const std::string& host, std::uint16_t port, planet::ReconnectPolicy policy = {});
-  const std::shared_ptr<planet::Peer>& peer() const { return peer_; }
+  // Several servers of one logical mediating server (docs/distribution.md): connects to the
+  // first and, whenever the link to the current one has been down (or never came up) for
+  // `failover_after`, moves to the next (round robin), where every device registers again.
+  struct ServerAddress {
+    std::string host;
+    std::uint16_t port = 0;
+  };
+  void connect(std::vector<ServerAddress> servers, std::chrono::milliseconds failover_after,
+               planet::ReconnectPolicy policy = {});
+  // The link to the current server (another one after a move to another server). Thread-safe.
+  std::shared_ptr<planet::Peer> peer() const;
+  // The server the manager uses now, "host:port" ("" before connect()). Thread-safe.
+  std::string current_server() const;
+  // Times it moved to another server.
+  std::uint64_t failovers() const;
 
   // Rounds in which every device was registered (1 after the first connection, +1 per
   // reconnection); failures are logged and retried on the next reconnection.
@@ -63,15 +79,26 @@ class DeviceManager {
   void update_one(const std::shared_ptr<Device>& device, bool online);
   void send_one(const std::shared_ptr<planet::Connection>& connection,
                 const std::shared_ptr<Device>& device, bool online);
+  // On the io thread: the failover timer while the current link is down.
+  void arm_failover();
+  void fail_over();
 
   planet::Communicator& communicator_;
   mutable std::mutex devices_mutex_;
   std::vector<std::shared_ptr<Device>> devices_;
   std::set<std::string> offline_;        // ids of devices not to register now
-  std::shared_ptr<planet::Peer> peer_;   // set and read on the io thread
+  std::shared_ptr<planet::Peer> peer_;   // set on the io thread (under mutex_), read there freely
   std::atomic<bool> connecting_{false};  // connect() was called
   std::shared_ptr<const char> alive_ = std::make_shared<const char>('\0');  // reset when destroyed
   std::uint64_t listener_ = 0;
+  // Failover (several servers): all on the io thread but `server_` and `failovers_` (mutex_).
+  std::vector<ServerAddress> servers_;
+  std::size_t current_ = 0;
+  std::chrono::milliseconds failover_after_{0};
+  planet::ReconnectPolicy policy_;
+  std::unique_ptr<asio::steady_timer> failover_timer_;
+  std::string server_;
+  std::uint64_t failovers_ = 0;
 
   mutable std::mutex mutex_;
   mutable std::condition_variable changed_;

@@ -108,6 +108,11 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
   std::uint64_t watch_devices(std::function<void(const std::string&)> fn) { return changes_.add(std::move(fn)); }
   void remove_device_watcher(std::uint64_t id) { changes_.remove(id); }
 
+  // Asked when a device registers whose services' ids another server's mirrored device holds
+  // here (docs/distribution.md): `fn(device_id)` removes that device and returns true, and the
+  // registration goes on; false, or no `fn`, refuses it. On the io thread.
+  void set_make_room(std::function<bool(const std::string&)> fn);
+
   // The calls through every adaptor bound from now on are reported to `observer` (see
   // planet::CallObserver); null: none. Set it before devices register.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
@@ -137,6 +142,7 @@ class DeviceRegistry final : public df::DeviceRegistryServant {
   std::map<std::string, Registered> devices_;
   std::shared_ptr<planet::CallObserver> call_observer_;
   Listeners<std::string> changes_;
+  std::function<bool(const std::string&)> make_room_;  // under mutex_
   std::unique_ptr<asio::steady_timer> forget_timer_;  // runs while devices are disconnected
   std::chrono::steady_clock::time_point forget_at_{};  // when it fires; {}: not armed
   std::shared_ptr<const char> alive_ = std::make_shared<const char>('\0');

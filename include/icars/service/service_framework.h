@@ -6,6 +6,7 @@
 
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "icars/planet/communicator.h"
@@ -45,7 +46,7 @@ class ServiceFramework {
   // as the framework lives. Not on the io thread.
   void share();
   DirectoryMirror& mirror(std::shared_ptr<planet::Peer> link, std::string name);
-  const std::vector<std::unique_ptr<DirectoryMirror>>& mirrors() const { return mirrors_; }
+  std::vector<std::shared_ptr<DirectoryMirror>> mirrors() const;
 
  private:
   planet::Communicator& communicator_;
@@ -54,7 +55,8 @@ class ServiceFramework {
   std::shared_ptr<DeviceRegistry> registry_;
   std::vector<std::unique_ptr<Composer>> composers_;
   std::unique_ptr<SharedDirectory> shared_;
-  std::vector<std::unique_ptr<DirectoryMirror>> mirrors_;
+  mutable std::mutex mirrors_mutex_;  // mirror() against the io thread's make-room requests
+  std::vector<std::shared_ptr<DirectoryMirror>> mirrors_;
 };
 
 }  // namespace icars::service

@@ -78,6 +78,16 @@ class DirectoryMirror {
   // The calls through the mirrored adaptors bound from now on are reported to `observer`.
   void set_call_observer(std::shared_ptr<planet::CallObserver> observer);
 
+  // Gives up a mirrored device (its services leave the container) so that another holder of
+  // its id takes its place: a device registering on this server, or (`only_if_disconnected`)
+  // another mirror's whose device is connected while this one's is not (a device manager that
+  // moved to another server). The mirror takes it back when it is told of it again and the id is
+  // free. Returns whether it gave the device up. On the io thread.
+  bool yield(const std::string& device_id, bool only_if_disconnected);
+  // Asked when a shared device's ids are held here by another mirror: `fn(device_id)` makes
+  // room (ServiceFramework asks the other mirrors to yield) and returns whether it did.
+  void set_make_room(std::function<bool(const std::string&)> fn);
+
  private:
   struct State;
   std::shared_ptr<State> state_;

@@ -72,4 +72,12 @@ void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
   manager_->connect(host, port);
 }
 
+void SimulatedHouse::start(std::vector<device::DeviceManager::ServerAddress> servers,
+                           std::chrono::milliseconds failover_after) {
+  if (state_) state_->start();
+  if (mqtt_) mqtt_->start();
+  if (driver_) driver_->start();
+  manager_->connect(std::move(servers), failover_after);
+}
+
 }  // namespace icars::home

@@ -65,6 +65,9 @@ class SimulatedHouse {
   // to the server (registering every device, again after every reconnection). Set the clock first (--epoch):
   // a robot's kept motion goes on from the clock's time here.
   void start(const std::string& host, std::uint16_t port);
+  // The same with several servers of one logical mediating server: the devices move to the next
+  // when the current one has been unreachable for `failover_after` (DeviceManager::connect).
+  void start(std::vector<device::DeviceManager::ServerAddress> servers, std::chrono::milliseconds failover_after);
 
   sim::World& world() { return *world_; }
   SimClock& clock() { return clock_; }
