@@ -3,6 +3,7 @@
 // the timeline, the JSON-lines trace, the summary and the plot.
 #include "mediator.h"
 #include "registries.h"
+#include "run_outputs.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -71,15 +72,6 @@ void reload_access(const RunOptions& options, server::MediatingServer& server, T
                        reload.principals,
                        reload.changed.empty() ? "none" : fmt::format("{}", fmt::join(reload.changed, ", ")),
                        reload.forgotten_devices)));
-}
-
-// The stop time: `until` on the house's first day (the next day when that is not after the
-// start), `days - 1` days later.
-Time stop_time(Time start, Time until, int days) {
-  const auto day = kDay * (start / kDay);
-  auto stop_at = day + until;
-  if (stop_at <= start) stop_at += kDay;
-  return stop_at + kDay * (days - 1);  // the house's daily schedule repeats
 }
 
 // What the embedded house's world does, in the trace: effects on devices, robots and users.
@@ -268,14 +260,10 @@ int run(const RunOptions& options) {
   }
   auto& trace = server->trace();
   trace.add_sink(summary.sink());
-  // The timeline leaves out positions and the command record (the "call" lines say it).
-  if (!options.quiet) trace.add_sink(b::timeline_printer(stdout, {"robot", "user", "command"}));
-  if (!options.trace_file.empty()) {
-    try {
-      trace.add_sink(b::json_lines_writer(options.trace_file));
-    } catch (const std::exception& e) {
-      return fail(2, e.what());
-    }
+  try {
+    add_trace_outputs(trace, options.quiet, options.trace_file);
+  } catch (const std::exception& e) {
+    return fail(2, e.what());
   }
   // Records are stamped with the house's time once a clock runs.
   server->services().registry().set_call_observer(

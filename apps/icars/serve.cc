@@ -29,6 +29,7 @@
 #include "icars/sim/house.h"
 #include "announcement.h"
 #include "registries.h"
+#include "run_outputs.h"
 #include "security_options.h"
 
 namespace icars::app {
@@ -89,15 +90,6 @@ std::map<std::string, int> placed_hosts(const c::Policy& policy) {
   };
   for (const auto& task : policy.tasks) walk(task.root);
   return hosts;
-}
-
-// The stop time: `until` on the house's first day (the next day when not after the start),
-// `days - 1` days later.
-Time stop_time(Time start, Time until, int days) {
-  const auto day = kDay * (start / kDay);
-  auto stop_at = day + until;
-  if (stop_at <= start) stop_at += kDay;
-  return stop_at + kDay * (days - 1);
 }
 
 }  // namespace
@@ -225,26 +217,17 @@ int serve(const ServeOptions& options) {
   }
   auto& trace = server->trace();
   if (!policy_name.empty()) trace.add_sink(summary.sink());
-  // Every record names its server, so the traces of all servers merge into one timeline
-  // (icars merge-traces).
-  const auto named = [name = options.name](b::Trace::Sink sink) {
-    return [name, sink = std::move(sink)](const b::TraceRecord& r) {
-      // The house's time of each server lags the house by up to a poll of its clock; the
-      // machine's clock orders records of several servers as they happened.
+  // Every record names its server and the machine's time, so that the traces of all servers
+  // merge into one timeline in the order things happened (icars merge-traces): each server's
+  // house time lags the house by up to a poll of its clock.
+  try {
+    add_trace_outputs(trace, options.quiet, options.trace_file, [name = options.name](b::TraceRecord& r) {
       const auto wall = std::chrono::duration_cast<std::chrono::microseconds>(
           std::chrono::system_clock::now().time_since_epoch());
-      auto copy = r;
-      copy.with("server", name).with("wall_us", static_cast<std::int64_t>(wall.count()));
-      sink(copy);
-    };
-  };
-  if (!options.quiet) trace.add_sink(b::timeline_printer(stdout, {"robot", "user", "command"}));
-  if (!options.trace_file.empty()) {
-    try {
-      trace.add_sink(named(b::json_lines_writer(options.trace_file)));
-    } catch (const std::exception& e) {
-      return fail(2, e.what());
-    }
+      r.with("server", name).with("wall_us", static_cast<std::int64_t>(wall.count()));
+    });
+  } catch (const std::exception& e) {
+    return fail(2, e.what());
   }
   server->services().registry().set_call_observer(
       std::make_shared<report::CommandRecorder>(trace, stamp, report::CommandRecorder::house_commands()));

@@ -173,6 +173,89 @@ TEST(IcarsServe, ThreeServersOneHouseASubtreeOnAnotherServerAndItsDeathAsAFailur
   if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);  // kept to look at when it failed
 }
 
+// A device manager given two servers: when its server is killed it moves to the other one,
+// whose coordinator then switches the light it hosts directly; the policy goes on.
+TEST(IcarsServe, ADeviceManagerMovesToTheNextServerWhenItsServerIsKilled) {
+  const auto dir = icars_test::run_directory("", "icars_serve_failover");
+  const auto env = icars_test::child_environment();
+  const auto trace = [&](const std::string& name) { return (dir / (name + ".jsonl")).string(); };
+  const auto policy = (dir / "blink.xml").string();
+  {
+    std::FILE* f = std::fopen(policy.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs(R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="blink">
+  <task name="Blink">
+    <repeat name="AllEvening" times="100">
+      <sequential name="Once">
+        <retry name="On" times="30" delay="1min"><behavior type="SetLights" rooms="living_room" on="true"/></retry>
+        <behavior type="Wait" duration="10min"/>
+        <retry name="Off" times="30" delay="1min"><behavior type="SetLights" rooms="living_room" on="false"/></retry>
+        <behavior type="Wait" duration="10min"/>
+      </sequential>
+    </repeat>
+  </task>
+  <statechart initial="Blinking"><state name="Blinking" task="Blink"/></statechart>
+</policy>
+)xml", f);
+    std::fclose(f);
+  }
+  icars_test::Program a(dir / "a.stderr", env, {kIcars, "serve", "--name", "A", "--trace", trace("a"), "--quiet"});
+  const auto port_a = start_server(a);
+  ASSERT_FALSE(port_a.empty()) << a.stderr_text();
+  icars_test::Program b(dir / "b.stderr", env,
+                        {kIcars, "serve", "--name", "B", "--peer", "A=127.0.0.1:" + port_a, "--policy", policy,
+                         "--world", kHouse, "--wait-for", "living_light", "--until", "21:00", "--trace", trace("b"),
+                         "--quiet"});
+  const auto port_b = start_server(b);
+  ASSERT_FALSE(port_b.empty()) << b.stderr_text();
+  icars_test::Program devices(dir / "devices.stderr", env,
+                              {kDeviceManager, "--house", kHouse, "--server", "127.0.0.1:" + port_a, "--server",
+                               "127.0.0.1:" + port_b, "--failover-after", "0.5", "--speedup",
+                               std::to_string(kSpeed), "--no-engines", "--devices", "living_light,sofa_sensor"});
+  const auto switched = [](const json& j) {
+    return str(j, "kind") == "call" && str(j, "call").starts_with("living_light.light.set_power") && !j.contains("error");
+  };
+  auto deadline = std::chrono::steady_clock::now() + 120s;
+  while (!has(trace_of(trace("b")), switched)) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "B never switched A's light\n" << b.stderr_text();
+    ASSERT_FALSE(b.exited()) << b.stderr_text();
+    std::this_thread::sleep_for(100ms);
+  }
+  a.signal(SIGKILL);
+  const auto killed_at = trace_of(trace("b")).size();
+  bool moved = false;
+  deadline = std::chrono::steady_clock::now() + 120s;
+  while (!moved) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "the device manager did not move\n"
+                                                          << devices.stderr_text();
+    for (const auto& line : devices.lines()) moved |= line == "SERVER 127.0.0.1:" + port_b;
+  }
+  deadline = std::chrono::steady_clock::now() + 300s;
+  while (!b.exited()) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "B did not stop at 21:00";
+    std::this_thread::sleep_for(100ms);
+  }
+  const int b_status = b.wait();
+  EXPECT_TRUE(icars_test::exit_problems("B", b_status, b.stderr_text()).empty()) << icars_test::tail(b.stderr_text());
+  devices.signal(SIGTERM);
+  EXPECT_TRUE(icars_test::exit_problems("device manager", devices.wait(), devices.stderr_text()).empty())
+      << icars_test::tail(devices.stderr_text());
+  // After A died, B switched the light again, now registered on B itself; no failure transition.
+  const auto tb = trace_of(trace("b"));
+  ASSERT_GT(tb.size(), killed_at);
+  // (Two: one call sent just before the kill may still have been answered.)
+  EXPECT_GE(std::count_if(tb.begin() + static_cast<std::ptrdiff_t>(killed_at), tb.end(),
+                          [](const json& j) {
+                            return str(j, "kind") == "behavior" && str(j, "type") == "SetLights" &&
+                                   str(j, "event") == "success";
+                          }),
+            2)
+      << "the light was not switched after A died";
+  EXPECT_FALSE(has(tb, [](const json& j) { return str(j, "kind") == "transition"; }));
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
+}
+
 TEST(IcarsServe, BadPeersHostsAndOptionsAreClearErrors) {
   const auto serve = [](const std::string& args) { return icars_test::run_program(kIcars, "serve " + args, 60); };
   auto r = serve("--peer B");

@@ -14,6 +14,7 @@
 
 #include "child_process.h"
 #include "icars/device/device_manager.h"
+#include "fake_sofa.h"
 #include "icars/planet/publisher.h"
 #include "policy_server.h"
 
@@ -43,24 +44,7 @@ constexpr const char* kPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
 </policy>
 )xml";
 
-class FakeSofa final : public OccupancySensorServant {
- public:
-  explicit FakeSofa(std::string device) : device_(std::move(device)) {}
-  bool occupied(const p::Current&) override { return occupied_.load(); }
-  std::string furniture(const p::Current&) override { return "sofa"; }
-  void subscribe(OccupancyListenerPrx l, const p::Current&) override { events_.subscribe(l); }
-  void unsubscribe(OccupancyListenerPrx l, const p::Current&) override { events_.unsubscribe(l); }
-  void set(bool occupied) {
-    occupied_ = occupied;
-    events_.publish(OccupancyEvent{device_, "sofa", occupied, 0});
-  }
-  std::size_t subscribers() const { return events_.size(); }
-
- private:
-  std::string device_;
-  std::atomic<bool> occupied_{false};
-  p::Publisher<OccupancyEvent> events_{OccupancyListener::on_occupancy};
-};
+using home_test::FakeSofa;
 
 class SenseTest : public ::testing::Test {
  protected:

@@ -15,6 +15,7 @@
 #include "icars/home/adaptors.h"
 #include "icars/home/behaviors.h"
 #include "icars/home/services.h"
+#include "fake_sofa.h"
 #include "icars/planet/publisher.h"
 #include "icars/server/mediating_server.h"
 #include "icars/service/shared_directory.h"
@@ -42,27 +43,7 @@ class FakeLight final : public LightServant {
   std::atomic<std::int32_t> intensity_{100};
 };
 
-class FakeSofa final : public OccupancySensorServant {
- public:
-  bool occupied(const p::Current&) override { return occupied_.load(); }
-  std::string furniture(const p::Current&) override { return "sofa"; }
-  void subscribe(OccupancyListenerPrx l, const p::Current&) override { events_.subscribe(l); }
-  void unsubscribe(OccupancyListenerPrx l, const p::Current&) override { events_.unsubscribe(l); }
-  void set(bool occupied) {
-    occupied_ = occupied;
-    events_.publish(OccupancyEvent{"sofa_sensor", "sofa", occupied, 0});
-  }
-  std::size_t subscribers() const { return events_.size(); }
-  std::vector<std::string> subscriber_paths() const {
-    std::vector<std::string> out;
-    for (const auto& s : events_.subscribers()) out.push_back(s.path);
-    return out;
-  }
-
- private:
-  std::atomic<bool> occupied_{false};
-  p::Publisher<OccupancyEvent> events_{OccupancyListener::on_occupancy};
-};
+using home_test::FakeSofa;
 
 server::ServerOptions home_server() {
   server::ServerOptions o;
