@@ -16,6 +16,7 @@
 #include "icars/home/behaviors.h"
 #include "icars/home/services.h"
 #include "fake_sofa.h"
+#include "fake_voice.h"
 #include "icars/planet/publisher.h"
 #include "icars/server/mediating_server.h"
 #include "icars/service/shared_directory.h"
@@ -288,6 +289,40 @@ TEST_F(SharedDirectoryTest, ADeviceManagerMovesToAnotherServerAndEveryServerFoll
       << devices.sofa->subscribers();
   devices.sofa->set(true);
   EXPECT_TRUE(planet_test::wait_until([&] { return heard == 1; }, 30s));
+}
+
+// The voice path over two servers: the microphone and the speech recognizer register on A;
+// B's SpeechSensor (B's own composite of the mirrored services) captures the microphone through
+// A's relay, a stream of A fed from the device's, and has B's recognizer call, relayed, decode it.
+TEST_F(SharedDirectoryTest, SpeechOnAMicrophoneOfAnotherServerIsRecognizedThroughItsRelay) {
+  p::Communicator side;
+  device::DeviceManager manager(side);
+  auto mic = std::make_shared<home_test::FakeMicrophone>(side);
+  auto robot_mic = std::make_shared<device::Device>("robot1_mic", "Microphone", "", "robot1");
+  robot_mic->add("sound_sensor", mic);
+  auto engine = std::make_shared<device::Device>("speech_engine", "SpeechEngine");
+  engine->add("speech_recognizer", std::make_shared<home_test::FakeRecognizer>());
+  manager.add(robot_mic);
+  manager.add(engine);
+  manager.connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("SpeechSensor") == 1; }, 30s));
+  auto speech = on_b<SpeechSensor>("SpeechSensor");
+  std::mutex mutex;
+  std::vector<std::string> heard;
+  speech->subscribe([&](const SpeechEvent& e) {
+    std::lock_guard lock(mutex);
+    heard.push_back(e.text);
+  });
+  // Two captures: A's own SoundSensor's and the relay's for B.
+  ASSERT_TRUE(planet_test::wait_until([&] { return mic->subscribers() == 2; }, 30s)) << mic->subscribers();
+  mic->hear("turn on the TV");
+  mic->hear("volume up");
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    std::lock_guard lock(mutex);
+    return heard.size() == 2;
+  }, 30s));
+  std::lock_guard lock(mutex);
+  EXPECT_EQ(heard, (std::vector<std::string>{"turn on the TV", "volume up"}));
 }
 
 TEST_F(SharedDirectoryTest, WhenTheMirroringServerGoesItsSubscriptionsGoFromTheDevices) {

@@ -3,11 +3,14 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <asio/co_spawn.hpp>
+#include <asio/detached.hpp>
 #include <asio/use_awaitable.hpp>
 #include <algorithm>
 
 #include "icars/planet/proxy.h"
 #include "icars/planet/remote.h"
+#include "icars/planet/stream.h"
 
 namespace icars::service {
 
@@ -43,7 +46,7 @@ std::vector<std::byte> rewrite_references(std::span<const std::byte> args, F rep
     if (code == p::TypeCode::valued) break;
     if (code == p::TypeCode::stream) {
       throw p::Error(p::ErrorKind::unimplemented,
-                     "a stream cannot be passed through another server: open it on the server the device registered on");
+                     "a stream argument cannot be passed through another server (a stream result can)");
     }
     const auto before = r.rest();
     p::skip_value(r, descriptor);
@@ -51,6 +54,43 @@ std::vector<std::byte> rewrite_references(std::span<const std::byte> args, F rep
   }
   w.raw(r.rest());
   return out;
+}
+
+// Copies what the device's stream carries to a stream of this server, as fast as the caller
+// reads (each side's window bounds what waits here); the end, the device's abort and the
+// caller's cancel each end the other side too.
+asio::awaitable<void> pump(std::shared_ptr<p::InputStream> from, std::shared_ptr<p::OutputStream> to) {
+  for (;;) {
+    std::vector<std::byte> chunk;
+    try {
+      chunk = co_await from->async_read(asio::use_awaitable);
+    } catch (const std::exception& e) {
+      to->abort(fmt::format("the device's stream broke: {}", e.what()));
+      co_return;
+    }
+    if (chunk.empty()) {
+      to->close();
+      co_return;
+    }
+    try {
+      co_await to->async_write(std::move(chunk), asio::use_awaitable);
+    } catch (const std::exception& e) {
+      from->cancel(fmt::format("the reader on the other server stopped: {}", e.what()));
+      co_return;
+    }
+  }
+}
+
+// The tagged result naming a stream of this server that relays `from_device` (opened over `link`).
+std::vector<std::byte> relay_stream(p::Communicator& communicator, const std::shared_ptr<p::Link>& link,
+                                    p::StreamRef from_device) {
+  auto in = p::InputStream::open(communicator, link, from_device);
+  auto out = p::OutputStream::create(communicator);
+  std::vector<std::byte> tagged;
+  p::Writer w(tagged);
+  p::encode_tagged(w, out->ref());
+  asio::co_spawn(communicator.executor(), pump(std::move(in), std::move(out)), asio::detached);
+  return tagged;
 }
 
 df::SharedDevice shared(const DeviceRegistry::DeviceView& view) {
@@ -317,18 +357,16 @@ p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak,
   const bool unsubscribing = call.method == "unsubscribe";
   if (!used.empty() && !unsubscribing) state->keep_subscription(used, args);
   state.reset();  // not held across the call
-  const std::string method = call.method;
   auto result = co_await proxy.async_call_raw(call.method, std::move(args), p::CallMode::at_most_once,
                                               asio::use_awaitable);
-  // A stream the device opened belongs to this server's link, not to the caller's.
-  if (!result.empty() && std::to_integer<std::uint8_t>(result.front()) == static_cast<std::uint8_t>(p::TypeCode::stream)) {
-    throw p::Error(p::ErrorKind::unimplemented,
-                   fmt::format("{} returns a stream, which cannot be passed through another server: use {} on "
-                               "the server it registered on",
-                               method, service));
-  }
   if (unsubscribing && !used.empty()) {
     if (auto again = weak.lock()) again->drop_listeners(used);
+  }
+  // A stream the device opened runs over this server's link: the caller gets a stream of this
+  // server, fed from the device's (a microphone's capture).
+  if (!result.empty() && std::to_integer<std::uint8_t>(result.front()) == static_cast<std::uint8_t>(p::TypeCode::stream)) {
+    p::Reader r(result);
+    co_return relay_stream(*call.communicator, link, p::decode_tagged<p::StreamRef>(r, "result"));
   }
   co_return result;
 }
