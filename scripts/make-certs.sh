@@ -57,8 +57,10 @@ sign() {
   rm -f "$dir/$name.csr"
 }
 
+# A server's certificate is a client's too: the servers of one logical mediating server
+# (icars serve --peer) present it on the links they open to each other.
 sign server icars-server "subjectAltName=$sans
-extendedKeyUsage=serverAuth
+extendedKeyUsage=serverAuth,clientAuth
 basicConstraints=CA:FALSE"
 for c in "${clients[@]}"; do
   sign "$c" "$c" "extendedKeyUsage=clientAuth

@@ -18,6 +18,7 @@
 
 #include "house_processes.h"
 #include "program_run.h"
+#include "tls_files.h"
 
 namespace {
 
@@ -253,6 +254,77 @@ TEST(IcarsServe, ADeviceManagerMovesToTheNextServerWhenItsServerIsKilled) {
             2)
       << "the light was not switched after A died";
   EXPECT_FALSE(has(tb, [](const json& j) { return str(j, "kind") == "transition"; }));
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
+}
+
+// Peers as docs/distribution.md secures them: TLS on every link, a token per server and an
+// access file on the sharing server. The peer with a principal that may call the directory,
+// the relays and the behavior host mirrors the house (it follows the house's clock through A);
+// a peer whose principal may not is told why.
+TEST(IcarsServe, PeersOverTlsWithTokensAndAnAccessFile) {
+  const auto dir = icars_test::run_directory("", "icars_serve_secure");
+  const auto env = icars_test::child_environment();
+  planet_test::make_certificates(dir);
+  const auto ca = (dir / "ca.pem").string(), cert = (dir / "server.pem").string(), key = (dir / "server.key").string();
+  const auto token = [&](const std::string& name, const std::vector<std::string>& extra) {
+    std::string args = "token " + name;
+    for (const auto& e : extra) args += " " + e;
+    const auto r = icars_test::run_program(kIcars, args, 60);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    const auto newline = r.output.find('\n');
+    return std::make_pair(r.output.substr(0, newline), r.output.substr(newline + 1, r.output.find('\n', newline + 1) - newline - 1));
+  };
+  const auto house = token("house", {"--devices", "'*'"});
+  const auto peer_b = token("B", {"--may-call", "/sf/directory", "'/sf/relay/*'", "/control/behavior_host"});
+  const auto peer_c = token("C", {"--may-call", "/control/behavior_host"});
+  const auto write = [&](const std::string& name, const std::string& text) {
+    const auto path = (dir / name).string();
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    EXPECT_NE(f, nullptr);
+    std::fputs(text.c_str(), f);
+    std::fclose(f);
+    return path;
+  };
+  const auto access = write("access.json", "{\"principals\": [" + house.second + ", " + peer_b.second + ", " +
+                                               peer_c.second + "]}");
+  const std::vector<std::string> tls = {"--tls", "on", "--tls-ca", ca, "--tls-cert", cert, "--tls-key", key};
+  std::vector<std::string> a_argv = {kIcars, "serve", "--name", "A", "--access", access, "--quiet"};
+  a_argv.insert(a_argv.end(), tls.begin(), tls.end());
+  icars_test::Program a(dir / "a.stderr", env, a_argv);
+  const auto port_a = start_server(a);
+  ASSERT_FALSE(port_a.empty()) << a.stderr_text();
+  icars_test::Program devices(dir / "devices.stderr", env,
+                              {kDeviceManager, "--house", kHouse, "--server", "127.0.0.1:" + port_a, "--speedup",
+                               std::to_string(kSpeed), "--no-engines", "--devices", "living_light", "--tls", "on",
+                               "--tls-ca", ca, "--token-file", write("house.token", house.first + "\n")});
+  const auto serve_peer = [&](const std::string& name, const std::string& token_line) {
+    std::vector<std::string> argv = {kIcars, "serve", "--name", name, "--peer", "A=127.0.0.1:" + port_a,
+                                     "--token-file", write(name + ".token", token_line + "\n"), "--quiet"};
+    argv.insert(argv.end(), tls.begin(), tls.end());
+    return std::make_unique<icars_test::Program>(dir / (name + ".stderr"), env, argv);
+  };
+  const auto wait_line = [](icars_test::Program& program, const std::string& text) {
+    const auto deadline = std::chrono::steady_clock::now() + 120s;
+    while (std::chrono::steady_clock::now() < deadline && !program.exited()) {
+      for (const auto& line : program.lines()) {
+        if (line.find(text) != std::string::npos) return line;
+      }
+    }
+    return std::string();
+  };
+  auto b = serve_peer("B", peer_b.first);
+  const auto serving = wait_line(*b, "B serving:");
+  EXPECT_FALSE(serving.empty()) << "B did not follow the house's clock through A\n" << b->stderr_text();
+  EXPECT_NE(serving.find("services"), std::string::npos) << serving;
+  auto c = serve_peer("C", peer_c.first);
+  const auto refused = wait_line(*c, "cannot read the service directory of A");
+  EXPECT_NE(refused.find("principal 'C' may not call '/sf/directory'"), std::string::npos)
+      << refused << "\n" << c->stderr_text();
+  for (auto* program : {b.get(), c.get(), &devices, &a}) program->signal(SIGTERM);
+  for (auto* program : {b.get(), c.get(), &devices, &a}) {
+    EXPECT_TRUE(icars_test::exit_problems("program", program->wait(), program->stderr_text()).empty())
+        << icars_test::tail(program->stderr_text());
+  }
   if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
 }
 
