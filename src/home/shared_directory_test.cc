@@ -325,6 +325,30 @@ TEST_F(SharedDirectoryTest, SpeechOnAMicrophoneOfAnotherServerIsRecognizedThroug
   EXPECT_EQ(heard, (std::vector<std::string>{"turn on the TV", "volume up"}));
 }
 
+// The link between the servers drops and comes back: B's services are unavailable meanwhile,
+// then B reads A's directory again and what changed meanwhile (a device that left) applies.
+TEST_F(SharedDirectoryTest, AfterTheLinkToTheSharingServerComesBackTheDirectoryIsReadAgain) {
+  Devices devices;
+  devices.manager->connect("127.0.0.1", a_port_);
+  ASSERT_TRUE(planet_test::wait_until(
+      [&] { return available_on_b("LightControl") == 1 && available_on_b("OccupancySensor") == 1; }, 30s));
+  auto light = on_b<LightService>("LightControl");
+  // The sofa's device leaves A while B's link to A is cut.
+  const auto close_b_to_a = [&] {
+    for (const auto& c : b_->communicator().connections().connections()) {
+      if (c->role() == p::ConnectionRole::client) c->close("cut by the test");
+    }
+  };
+  close_b_to_a();
+  devices.manager->set_online("sofa_sensor", false);
+  ASSERT_TRUE(planet_test::wait_until([&] { return light->available(); }, 30s))
+      << "B did not read A's directory again after its link came back";
+  ASSERT_TRUE(planet_test::wait_until(
+      [&] { return b_->container().find(s::ServiceQuery::of_type("OccupancySensor")).empty(); }, 30s));
+  light->proxy().set_power(true);
+  EXPECT_TRUE(devices.light->on());
+}
+
 TEST_F(SharedDirectoryTest, WhenTheMirroringServerGoesItsSubscriptionsGoFromTheDevices) {
   Devices devices;
   devices.manager->connect("127.0.0.1", a_port_);

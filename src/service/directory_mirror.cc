@@ -269,7 +269,8 @@ DirectoryMirror::DirectoryMirror(p::Communicator& communicator, ServiceContainer
   state_->connection_listener = communicator.connections().add_listener([weak](const p::ConnectionEvent& e) {
     auto state = weak.lock();
     if (!state || e.peer != state->link) return;
-    if (e.kind == p::LinkEventKind::connected) {
+    // A reconnection reads the directory again: what changed while the link was down.
+    if (e.kind == p::LinkEventKind::connected || e.kind == p::LinkEventKind::reconnected) {
       state->sync();
     } else if (e.kind == p::LinkEventKind::disconnected) {
       state->link_down(e.reason);
