@@ -59,6 +59,14 @@ struct DirectoryMirror::State : std::enable_shared_from_this<State> {
   }
   void apply(const df::SharedDevice& shared);
   void remove(const std::string& id, bool forgotten);
+  // Services that leave the container for good (their device left, or gave way).
+  void retire(const std::vector<std::shared_ptr<Adaptor>>& services) {
+    for (const auto& s : services) {
+      s->unbind();
+      s->retire();
+      container.remove(s->id());
+    }
+  }
   void link_down(const std::string& reason);
   void emit(std::string type, const std::string& device, std::string reason = {}) {
     p::Event e(std::move(type));
@@ -150,11 +158,7 @@ void DirectoryMirror::State::apply(const df::SharedDevice& shared) {
       }
     }
   }
-  for (const auto& s : replaced) {
-    s->unbind();
-    s->retire();
-    container.remove(s->id());
-  }
+  retire(replaced);
   if (!known) {
     Mirrored m;
     m.info = info;
@@ -225,11 +229,7 @@ void DirectoryMirror::State::remove(const std::string& id, bool forgotten) {
     m = std::move(it->second);
     devices.erase(it);
   }
-  for (const auto& s : m.services) {
-    s->unbind();
-    s->retire();
-    container.remove(s->id());
-  }
+  retire(m.services);
   if (forgotten) emit("DeviceForgotten", id);
 }
 
@@ -311,11 +311,7 @@ bool DirectoryMirror::yield(const std::string& device_id, bool only_if_disconnec
     state_->devices.erase(it);
     state_->refused.insert(device_id);
   }
-  for (const auto& s : m.services) {
-    s->unbind();
-    s->retire();
-    state_->container.remove(s->id());
-  }
+  state_->retire(m.services);
   state_->communicator.log().info("device {} of {} gives way to another holder", device_id, state_->name);
   return true;
 }

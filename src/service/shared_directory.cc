@@ -118,6 +118,7 @@ struct SharedDirectory::State : std::enable_shared_from_this<State> {
     std::weak_ptr<p::Connection> caller;    // where its events go
     std::string caller_path;                // the caller's listener
     std::string service;                    // the service it was subscribed to
+    std::weak_ptr<Adaptor> target;          // that service's adaptor here
     std::vector<std::byte> subscription;    // the rewritten arguments (for unsubscribe)
     const p::Servant* servant = nullptr;
   };
@@ -133,30 +134,26 @@ struct SharedDirectory::State : std::enable_shared_from_this<State> {
   std::uint64_t registry_watch = 0;
   std::uint64_t connection_listener = 0;
 
-  // The registry's adaptor of a service id ("<device>.<capability>"; a device id may hold dots).
-  std::shared_ptr<Adaptor> adaptor(const std::string& service_id) const {
-    for (auto cut = service_id.rfind('.'); cut != std::string::npos && cut > 0;
-         cut = service_id.rfind('.', cut - 1)) {
-      if (auto view = registry.view(service_id.substr(0, cut))) {
-        for (const auto& s : view->services) {
-          if (s->id() == service_id) return s;
-        }
-      }
-    }
-    return nullptr;
-  }
-
   // Relays for the device's services while it is registered; none after.
   void update_relays(const std::string& device_id);
   void device_changed(const std::string& device_id);
   void connection_closed(std::uint64_t connection);
-  p::ObjectRef relay_listener(const p::ForwardedCall& call, const p::ObjectRef& ref, const std::string& service,
-                              std::vector<std::string>& used);
+  p::ObjectRef relay_listener(const p::ForwardedCall& call, const p::ObjectRef& ref,
+                              const std::shared_ptr<Adaptor>& target, std::vector<std::string>& used);
   void keep_subscription(const std::vector<std::string>& used, const std::vector<std::byte>& args);
   void drop_listeners(const std::vector<std::string>& used);
 
-  static p::Servant::AsyncResult relay(std::weak_ptr<State> weak, std::string service, p::ForwardedCall call);
-  static p::Servant::AsyncResult to_caller(std::weak_ptr<State> weak, std::string path, p::ForwardedCall call);
+  // The relay's and a relay listener's work. Each servant holds what it forwards to, so a call or
+  // an event finds its adaptor and its caller without a lookup.
+  static p::Servant::AsyncResult relay(std::weak_ptr<State> weak, std::weak_ptr<Adaptor> service,
+                                       p::ForwardedCall call);
+  struct Caller {
+    std::weak_ptr<p::Connection> connection;
+    std::string path;
+    std::weak_ptr<Adaptor> target;  // the device whose events it takes
+    std::string service;
+  };
+  static p::Servant::AsyncResult to_caller(Caller caller, p::ForwardedCall call);
 };
 
 class SharedDirectory::Directory final : public df::ServiceDirectoryServant {
@@ -219,8 +216,8 @@ void SharedDirectory::State::update_relays(const std::string& device_id) {
     for (const auto& s : view ? view->services : std::vector<std::shared_ptr<Adaptor>>{}) {
       if (relays.contains(s->id())) continue;
       auto servant = std::make_shared<p::Servant>(s->interface_id());
-      servant->forward_others([weak = weak_from_this(), id = s->id()](p::ForwardedCall call) {
-        return relay(weak, id, std::move(call));
+      servant->forward_others([weak = weak_from_this(), target = std::weak_ptr<Adaptor>(s)](p::ForwardedCall call) {
+        return relay(weak, target, std::move(call));
       });
       try {
         communicator.adapter().add(relay_path(s->id()), servant);
@@ -273,7 +270,7 @@ void SharedDirectory::State::connection_closed(std::uint64_t connection) {
   for (auto& l : gone) {
     communicator.adapter().remove(l.path, l.servant);
     // The device forgets the subscription too (subscribe's counterpart takes the same arguments).
-    auto target = adaptor(l.service);
+    auto target = l.target.lock();
     const auto link = target ? target->bound_link() : nullptr;
     if (!link || l.subscription.empty()) continue;
     p::Proxy proxy(communicator, link, target->path());
@@ -283,19 +280,21 @@ void SharedDirectory::State::connection_closed(std::uint64_t connection) {
 }
 
 p::ObjectRef SharedDirectory::State::relay_listener(const p::ForwardedCall& call, const p::ObjectRef& ref,
-                                                    const std::string& service, std::vector<std::string>& used) {
+                                                    const std::shared_ptr<Adaptor>& target,
+                                                    std::vector<std::string>& used) {
   std::lock_guard lock(mutex);
-  const auto key = std::make_tuple(call.connection->id(), ref.path, service);
+  const auto key = std::make_tuple(call.connection->id(), ref.path, target->id());
   auto it = listeners.find(key);
   if (it == listeners.end()) {
     Listener l;
     l.path = fmt::format("{}{}/{}", kRelayListenerPrefix, call.connection->id(), next_listener++);
     l.caller = call.connection;
     l.caller_path = ref.path;
-    l.service = service;
+    l.service = target->id();
+    l.target = target;
     auto servant = std::make_shared<p::Servant>(ref.type_id);
-    servant->forward_others([weak = weak_from_this(), path = l.path](p::ForwardedCall c) {
-      return to_caller(weak, path, std::move(c));
+    servant->forward_others([caller = Caller{call.connection, ref.path, target, target->id()}](p::ForwardedCall c) {
+      return to_caller(caller, std::move(c));
     });
     communicator.adapter().add(l.path, servant);
     l.servant = servant.get();
@@ -330,12 +329,12 @@ void SharedDirectory::State::drop_listeners(const std::vector<std::string>& used
 }
 
 // A call of another server to a shared capability: forwarded to the device over its own link.
-p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak, std::string service,
+p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak, std::weak_ptr<Adaptor> service,
                                                       p::ForwardedCall call) {
   auto state = weak.lock();
   if (!state) throw p::Error(p::ErrorKind::disconnected, "the directory is closing");
-  auto target = state->adaptor(service);
-  if (!target) throw p::Error(p::ErrorKind::unimplemented, fmt::format("service {} is gone", service));
+  auto target = service.lock();
+  if (!target) throw p::Error(p::ErrorKind::unimplemented, fmt::format("the service at {} is gone", call.path));
   auto link = target->bound_link();
   if (!link) {
     throw p::Error(p::ErrorKind::disconnected,
@@ -345,7 +344,7 @@ p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak,
   // relay listener here instead, which forwards to the caller.
   std::vector<std::string> used;
   auto args = rewrite_references(call.args, [&](const p::ObjectRef& ref) {
-    return state->relay_listener(call, ref, service, used);
+    return state->relay_listener(call, ref, target, used);
   });
   p::Proxy proxy(*call.communicator, link, target->path());
   proxy.set_timeout(kRelayTimeout);
@@ -372,36 +371,21 @@ p::Servant::AsyncResult SharedDirectory::State::relay(std::weak_ptr<State> weak,
 }
 
 // An event (or any call) of a device to a relay listener: forwarded to the caller's listener.
-p::Servant::AsyncResult SharedDirectory::State::to_caller(std::weak_ptr<State> weak, std::string path,
-                                                          p::ForwardedCall call) {
-  auto state = weak.lock();
-  if (!state) throw p::Error(p::ErrorKind::disconnected, "the directory is closing");
-  std::shared_ptr<p::Connection> caller;
-  std::string caller_path;
-  std::string service;
-  {
-    std::lock_guard lock(state->mutex);
-    for (const auto& [key, l] : state->listeners) {
-      if (l.path != path) continue;
-      caller = l.caller.lock();
-      caller_path = l.caller_path;
-      service = l.service;
-    }
-  }
-  auto target = state->adaptor(service);
+p::Servant::AsyncResult SharedDirectory::State::to_caller(Caller caller, p::ForwardedCall call) {
+  auto target = caller.target.lock();
   // Only the device's own manager speaks for it, as to the adaptor's own listener.
   if (!target || target->bound_connection() == 0 || !call.connection ||
       call.connection->id() != target->bound_connection()) {
     throw p::Error(p::ErrorKind::denied,
-                   fmt::format("only the device behind {} may deliver its events", service));
+                   fmt::format("only the device behind {} may deliver its events", caller.service));
   }
-  if (!caller || !caller->is_open()) throw p::Error(p::ErrorKind::disconnected, "the subscriber's link is down");
-  p::Proxy proxy(*call.communicator, caller, caller_path);
+  auto connection = caller.connection.lock();
+  if (!connection || !connection->is_open()) throw p::Error(p::ErrorKind::disconnected, "the subscriber's link is down");
+  p::Proxy proxy(*call.communicator, connection, caller.path);
   if (call.oneway) {
     proxy.notify_raw(call.method, call.args);
     co_return std::vector<std::byte>{};
   }
-  state.reset();
   co_return co_await proxy.async_call_raw(call.method, std::move(call.args), p::CallMode::at_most_once,
                                           asio::use_awaitable);
 }
