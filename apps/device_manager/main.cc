@@ -6,6 +6,7 @@
 //   icars-device-manager --house houses/paper_house.xml --server 127.0.0.1:7000 [--speedup 60]
 //                        [--server HOST:PORT --failover-after SECONDS]
 //                        [--effects FILE] [--epoch UNIX_MS] [--state FILE]
+//                        [--fleet-port PORT --fleet-key FILE]
 //
 // Prints "REGISTERED <round> <devices>" after each complete registration round (tests wait on
 // it), "SERVER <host:port>" when it moved to another of several --server, and "LINK DOWN <reason>" whenever the server cannot be reached or denies the connection. With --effects, writes one JSON line per command a device executed (its effect, with the
@@ -15,7 +16,9 @@
 // robots keep their state in FILE and come back from it when the manager restarts, even after
 // SIGKILL (docs/house.md, "State file"); it prints "STATE restored|new|rejected FILE" first.
 // With --mqtt, the house's MQTT devices are simulated on that broker (docs/house.md, "MQTT
-// devices") for an icars-mqtt-bridge to bring in.
+// devices") for an icars-mqtt-bridge to bring in. With --fleet-port, every robot whose wheels it
+// hosts is a COROS agent of that fleet bidding for a robot market's errands (docs/distribution.md,
+// "Robots"); it prints "FLEET <robots>" once they run.
 // Stops on SIGINT/SIGTERM.
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -31,6 +34,7 @@
 
 #include "icars/home/sim/simulated_house.h"
 #include "icars/planet/endpoint.h"
+#include "fleet_options.h"
 #include "security_options.h"
 
 namespace home = icars::home;
@@ -72,6 +76,8 @@ int main(int argc, char** argv) {
                  "before it the clock holds, after it a (re)started manager first runs its house forward "
                  "to the simulated time of now, in step with the other managers given the same epoch")
       ->check(CLI::PositiveNumber);
+  icars::app::FleetSettings fleet;
+  icars::app::add_fleet_options(app, fleet, "each robot whose wheels this manager hosts bids for errands");
   std::string state_file;
   app.add_option("--state", state_file,
                  "keep the simulated devices' and robots' state in this file (JSON, written atomically "
@@ -129,6 +135,14 @@ int main(int argc, char** argv) {
   options.pun = pun;
   options.tls = security.tls;
   options.state_file = state_file;
+  if (fleet.enabled()) {
+    try {
+      options.fleet = icars::app::fleet_agent(fleet, "robot");
+    } catch (const std::exception& e) {
+      std::cerr << "icars-device-manager: " << e.what() << "\n";
+      return 2;
+    }
+  }
   if (!mqtt.empty()) {
     try {
       const auto uri = icars::bridge::mqtt::parse_broker_uri(mqtt);
@@ -178,6 +192,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   auto& manager = simulation->manager();
+  if (auto* agents = simulation->robot_agents(); agents && agents->agents().empty()) {
+    std::cerr << "icars-device-manager: --fleet-port: this manager hosts no robot's Wheels\n";
+    return 2;
+  }
   if (epoch_ms > 0) {
     // The simulated time the wall clock stands for: house start + (now - epoch) * speedup.
     const auto start = simulation->clock().now();
@@ -206,6 +224,11 @@ int main(int argc, char** argv) {
       simulation->start(addresses.front().host, addresses.front().port);
     } else {
       simulation->start(addresses, std::chrono::milliseconds(static_cast<std::int64_t>(failover_after_s * 1000)));
+    }
+    if (auto* agents = simulation->robot_agents()) {
+      std::string ids;
+      for (auto* a : agents->agents()) ids += (ids.empty() ? "" : ",") + a->id();
+      std::cout << "FLEET " << ids << std::endl;
     }
   } catch (const std::exception& e) {
     std::cerr << "icars-device-manager: " << e.what() << "\n";

@@ -189,6 +189,9 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--listen", run.listen, "where device managers connect, host:port")->capture_default_str();
   run_cmd->add_flag("--external", run.external, "device managers run as separate processes");
   run_cmd->add_flag("--quiet", run.quiet, "print only the summary");
+  run_cmd->add_flag("--market", run.market,
+                    "run the robot market (robot=\"any\"; on by itself for a house with two robots or more)");
+  add_fleet_options(*run_cmd, run.fleet, "the robot market");
   run_cmd->add_option("--policies", run.policy_dir, "the policy repository directory")->capture_default_str();
   run_cmd->add_option("--mqtt", run.mqtt,
                       "MQTT broker, mqtt://HOST[:PORT] or mqtts://HOST[:PORT]: the house's MQTT devices "
@@ -281,6 +284,7 @@ int main(int argc, char** argv) {
                         "/sf/relay/* and /control/behavior_host (docs/distribution.md)")
       ->check(CLI::ExistingFile);
   icars::app::add_tls_options(*serve_cmd, serve.tls, icars::app::Side::server);
+  add_fleet_options(*serve_cmd, serve.fleet, "the robot market of the behaviors running here");
   serve_cmd->add_option("--plugin", serve.plugins, "a plugin (shared library) adding behavior, adaptor and composer types")
       ->allow_extra_args(false);
 

@@ -3,6 +3,7 @@
 // the timeline, the JSON-lines trace, the summary and the plot.
 #include "mediator.h"
 #include "registries.h"
+#include "robot_market_host.h"
 #include "run_outputs.h"
 
 #include <fmt/format.h>
@@ -18,6 +19,7 @@
 
 #include "announcement.h"
 #include "embedded_mqtt.h"
+#include "icars/coros/authentication.h"
 #include "icars/clock/lock_step.h"
 #include "icars/control/policy_check.h"
 #include "icars/home/behaviors.h"
@@ -184,6 +186,26 @@ int run(const RunOptions& options) {
   } catch (const std::exception& e) {
     return fail(2, e.what());
   }
+  // The robot market, and the fleet its robots bid on.
+  const bool market = options.market || options.fleet.enabled() || house.robots.size() >= 2;
+  std::optional<coros::AgentConfiguration> fleet;
+  if (market) {
+    try {
+      if (options.fleet.enabled()) {
+        fleet = fleet_agent(options.fleet, "icars");
+      } else if (options.external) {
+        throw std::invalid_argument(
+            "the robot market of an --external run needs the fleet its robots' device managers joined: "
+            "--fleet-port PORT --fleet-key FILE");
+      } else {
+        fleet.emplace();
+        fleet->transport.broadcast_port = coros::free_udp_port();
+        fleet->transport.key = coros::FleetKey::generate();
+      }
+    } catch (const std::exception& e) {
+      return fail(2, e.what());
+    }
+  }
   server::ServerOptions server_options;
   server_options.listen = options.listen;
   server_options.policy_dir = options.policy_dir;
@@ -299,6 +321,7 @@ int run(const RunOptions& options) {
     auto house_options = embedded_house(options, trace, house_token);
     house_options.device_types = registries->sim_devices;
     house_options.activity = activity;
+    house_options.fleet = fleet;
     if (mqtt_house) {
       house_options.mqtt.emplace();
       house_options.mqtt->broker = *broker;
@@ -386,6 +409,18 @@ int run(const RunOptions& options) {
       } else if (signal > 0) {
         return 0;
       }
+    }
+  }
+  std::unique_ptr<RobotMarketHost> robot_market;
+  if (fleet) {
+    home::RobotMarketOptions market_options;
+    market_options.agent = *fleet;
+    market_options.agent.id = "icars";
+    if (lock_step) market_options.activity = activity;
+    try {
+      robot_market = std::make_unique<RobotMarketHost>(*server, std::move(market_options));
+    } catch (const std::exception& e) {
+      return fail(2, fmt::format("the robot market: {}", e.what()));
     }
   }
   const auto started_at = clock->now();

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "fleet_options.h"
 #include "icars/planet/security.h"
 #include "live_dashboard.h"
 
@@ -37,6 +38,11 @@ struct RunOptions {
   bool home_assistant = false;
   std::string ha_node_id;
   DashboardSettings dashboard;  // --http: the live dashboard (docs/dashboard.md)
+  // The robot market (docs/distribution.md, "Robots"): on with --market, or when the house has
+  // two robots or more; the embedded house's robots then bid on a fleet of their own (a free
+  // port, a fresh key) unless `fleet` names one, which --external needs.
+  bool market = false;
+  FleetSettings fleet;
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

@@ -3,6 +3,7 @@
 // (docs/distribution.md). Its clock follows the simulated house's (the Simulation service, from
 // a device manager of its own or a peer's), or the wall clock.
 #include "serve.h"
+#include "robot_market_host.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -278,6 +279,16 @@ int serve(const ServeOptions& options) {
     }
   } release_clock{*server, stamp};
   report::ServiceRecorder heard(server->container(), trace, true);
+  std::unique_ptr<RobotMarketHost> robot_market;
+  if (options.fleet.enabled()) {
+    home::RobotMarketOptions market_options;
+    try {
+      market_options.agent = fleet_agent(options.fleet, options.name);
+      robot_market = std::make_unique<RobotMarketHost>(*server, std::move(market_options));
+    } catch (const std::exception& e) {
+      return fail(2, fmt::format("the robot market: {}", e.what()));
+    }
+  }
   server->use_clock(*clock);  // hosts the peers' subtrees from now on
   std::printf("[icars] %s serving: %zu devices here, %zu services\n", options.name.c_str(),
               server->services().registry().registered_devices(), server->container().all().size());

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "fleet_options.h"
 #include "icars/planet/security.h"
 
 namespace icars::app {
@@ -35,6 +36,9 @@ struct ServeOptions {
   std::string access_file;      // who may connect and call what (peers need a principal too)
   std::string token_file;       // the token this server presents to its peers
   std::vector<std::string> plugins;
+  // The robot market of the behaviors running here (docs/distribution.md, "Robots"): on when
+  // the fleet is given; give it to the server whose behaviors ask for robot="any".
+  FleetSettings fleet;
 };
 
 // A peer as given: NAME=HOST:PORT. Throws std::invalid_argument naming what is wrong.

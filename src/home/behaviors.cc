@@ -3,6 +3,8 @@
 // the network), and whatever it holds is released at exit by the behavior model.
 #include "icars/home/behaviors.h"
 
+#include "icars/home/robot_market.h"
+
 #include "speech_listener.h"
 #include "voice_commands.h"
 
@@ -155,11 +157,217 @@ class Sense final : public Behavior {
   std::map<std::string, Bound> bound_;  // by service id
 };
 
+// --- Errands: robots the market chooses -----------------------------------------------------------
+
+// A behavior that sends robots the RobotMarket chooses (robot="any") to stops, each stop one
+// errand: auctioned among the robots, driven by the winner when its turn comes, auctioned again
+// when the robot fails it (its Navigation service went away, it stopped announcing itself, or it
+// made no progress for `stall_after`), until it is reached or no robot can take it. Every award
+// and re-auction is a trace record of kind "auction" with the bids (docs/trace.md).
+class ErrandDriving : public Behavior {
+ protected:
+  // reached: the robot stands at the stop; otherwise `why` says why the stop is given up
+  // (no robot bid, the stop cannot be reached).
+  using Finished = std::function<void(bool reached, const std::string& robot, const std::string& why)>;
+
+  explicit ErrandDriving(Time stall_after) : stall_after_(stall_after) {}
+
+  void bind_market() { market_ = require<RobotMarket>(of_type("RobotMarket")); }
+  // Auctions `stop` (a place name, or x/y with no name); `finished` runs once.
+  void send_robot(const std::string& label, coros::Place stop, Finished finished) {
+    const auto errand = market_->offer(label, stop, guard([this](ErrandUpdate u) { on_update(u); }));
+    stops_[errand] = Stop{label, std::move(stop), std::move(finished), "", 0};
+  }
+  std::size_t open_stops() const { return stops_.size(); }
+  void exit() override {
+    for (const auto& [errand, stop] : stops_) market_->withdraw(errand);
+    for (auto& [robot, w] : robots_) {
+      if (!w.errand.empty() && w.nav->available() && w.nav->proxy().bound()) {
+        invoke(*w.nav, "stop", [&](auto done) { w.nav->proxy().stop_async(done); }, [](std::exception_ptr) {});
+      }
+    }
+    stops_.clear();
+  }
+  std::shared_ptr<RobotMarket> market_;
+
+ private:
+  struct Stop {
+    std::string label;
+    coros::Place stop;
+    Finished finished;
+    std::string robot;  // the holder, "" while auctioning
+    std::uint64_t stall_timer = 0;
+  };
+  struct Wheels {
+    std::shared_ptr<NavigationService> nav;
+    std::string errand;  // being driven to, "" when idle
+  };
+
+  static std::string bids_text(const ErrandUpdate& u) {
+    std::vector<std::string> parts;
+    for (const auto& [robot, cost] : u.bids) parts.push_back(fmt::format("{} {:.2f} m", robot, cost));
+    return parts.empty() ? "no bids" : fmt::format("{}", fmt::join(parts, ", "));
+  }
+  void trace_auction(const Stop& stop, const ErrandUpdate& u, const std::string& outcome, std::string text) {
+    std::vector<std::pair<std::string, TraceValue>> fields{
+        {"errand", u.errand}, {"stop", stop.label},  {"outcome", outcome},
+        {"round", static_cast<std::int64_t>(u.round)}, {"robot", u.robot}, {"bids", bids_text(u)}};
+    if (u.kind == ErrandUpdate::Kind::assigned) {
+      fields.emplace_back("cost", u.cost);
+      fields.emplace_back("auction_ms", u.auction_ms);
+    }
+    for (const auto& [robot, cost] : u.bids) fields.emplace_back("bid." + robot, cost);
+    if (!u.excluded.empty()) fields.emplace_back("excluded", fmt::format("{}", fmt::join(u.excluded, ",")));
+    if (!u.reason.empty()) fields.emplace_back("reason", u.reason);
+    record("auction", std::move(text), std::move(fields));
+  }
+
+  void on_update(const ErrandUpdate& u) {
+    auto it = stops_.find(u.errand);
+    if (it == stops_.end()) return;
+    Stop& stop = it->second;
+    switch (u.kind) {
+      case ErrandUpdate::Kind::assigned:
+        stop.robot = u.robot;
+        trace_auction(stop, u, "awarded",
+                      fmt::format("{}: {} goes to {} (round {}; {})", path(), u.robot, stop.label, u.round, bids_text(u)));
+        return;
+      case ErrandUpdate::Kind::turn:
+        drive(u.errand, u.robot);
+        return;
+      case ErrandUpdate::Kind::reauctioned:
+        trace_auction(stop, u, "reauction",
+                      fmt::format("{}: {} lost {} ({}); auctioned again", path(), u.robot, stop.label, u.reason));
+        abandon(u.errand, u.robot);
+        return;
+      case ErrandUpdate::Kind::unassigned: {
+        trace_auction(stop, u, "unassigned", fmt::format("{}: no robot for {}: {}", path(), stop.label, u.reason));
+        auto finished = std::move(stop.finished);
+        stops_.erase(it);
+        finished(false, "", u.reason);
+        return;
+      }
+    }
+  }
+
+  // The robot stops driving to `errand` (it lost it); a robot still there is stopped.
+  void abandon(const std::string& errand, const std::string& robot) {
+    auto s = stops_.find(errand);
+    if (s != stops_.end()) {
+      if (s->second.stall_timer != 0) cancel(s->second.stall_timer);
+      s->second.stall_timer = 0;
+      s->second.robot.clear();
+    }
+    auto w = robots_.find(robot);
+    if (w == robots_.end() || w->second.errand != errand) return;
+    w->second.errand.clear();
+    auto nav = w->second.nav;
+    if (nav->available() && nav->proxy().bound()) {
+      invoke(*nav, "stop", [&](auto done) { nav->proxy().stop_async(done); }, [](std::exception_ptr) {});
+    }
+  }
+
+  void drive(const std::string& errand, const std::string& robot) {
+    auto& w = robots_[robot];
+    if (!w.nav) {
+      w.nav = discover<NavigationService>(of_type("Navigation").on_device(robot + "_wheels"));
+      if (!w.nav) w.nav = discover<NavigationService>(of_type("Navigation").carried_by(robot));
+      if (!w.nav) {
+        robots_.erase(robot);
+        market_->failed(errand, robot + " has no available Navigation service");
+        return;
+      }
+      listen(w.nav, [this, robot](const Event& e) { on_position(robot, e); });
+    }
+    if (!w.nav->available()) {
+      market_->failed(errand, w.nav->id() + " is unavailable");
+      return;
+    }
+    Stop& stop = stops_.at(errand);
+    w.errand = errand;
+    arm_stall(errand, robot);
+    auto nav = w.nav;
+    auto refused = [this, errand, robot](std::exception_ptr e, double = 0) {
+      if (!e) return;
+      auto s = stops_.find(errand);
+      if (s == stops_.end() || robots_[robot].errand != errand) return;
+      robots_[robot].errand.clear();
+      const auto why = describe(e);
+      if (!robots_[robot].nav->available()) {
+        market_->failed(errand, robot + " could not be sent: " + why);
+        return;
+      }
+      finish(errand, false, robot, why);  // the house has no way there: no robot will do better
+    };
+    if (!stop.stop.name.empty()) {
+      const auto target = stop.stop.name;
+      invoke(*nav, fmt::format("go_to_waypoint({})", target),
+             [&](auto done) { nav->proxy().go_to_waypoint_async(target, done); }, refused);
+    } else {
+      home::Pose pose;
+      pose.x = stop.stop.x;
+      pose.y = stop.stop.y;
+      pose.theta = 0;
+      invoke(*nav, fmt::format("go_to({:.1f}, {:.1f})", pose.x, pose.y),
+             [&](auto done) { nav->proxy().go_to_async(pose, done); }, refused);
+    }
+  }
+
+  // A robot that reports no motion for stall_after while driving has stalled.
+  void arm_stall(const std::string& errand, const std::string& robot) {
+    auto s = stops_.find(errand);
+    if (s == stops_.end()) return;
+    if (s->second.stall_timer != 0) cancel(s->second.stall_timer);
+    s->second.stall_timer = after(stall_after_, [this, errand, robot] {
+      auto s2 = stops_.find(errand);
+      if (s2 == stops_.end()) return;
+      s2->second.stall_timer = 0;
+      if (robots_[robot].errand != errand) return;
+      note(fmt::format("{} made no progress towards {} for {} s", robot, s2->second.label, stall_after_.count() / 1000));
+      market_->failed(errand, fmt::format("{} stalled", robot));
+    });
+  }
+
+  void on_position(const std::string& robot, const Event& e) {
+    if (e.type() != "PositionEvent") return;
+    auto w = robots_.find(robot);
+    if (w == robots_.end() || w->second.errand.empty()) return;
+    const std::string errand = w->second.errand;
+    if (e.get<bool>("moving")) {
+      arm_stall(errand, robot);
+      return;
+    }
+    w->second.errand.clear();
+    if (e.get<bool>("arrived")) {
+      finish(errand, true, robot, "");
+    } else {
+      market_->failed(errand, fmt::format("{} stopped short of {}", robot, stops_.at(errand).label));
+    }
+  }
+
+  void finish(const std::string& errand, bool reached, const std::string& robot, const std::string& why) {
+    auto it = stops_.find(errand);
+    if (it == stops_.end()) return;
+    if (it->second.stall_timer != 0) cancel(it->second.stall_timer);
+    auto finished = std::move(it->second.finished);
+    stops_.erase(it);
+    market_->done(errand);
+    finished(reached, robot, why);
+  }
+
+  Time stall_after_;
+  std::map<std::string, Stop> stops_;      // by errand
+  std::map<std::string, Wheels> robots_;  // by robot
+};
+
 // --- Navigation helpers ---------------------------------------------------------------------------
 
-// A behavior that drives the robot: go_to / go_to_waypoint and waiting for the arrival event.
-class Driving : public Behavior {
+// A behavior that drives the robot: go_to / go_to_waypoint and waiting for the arrival event;
+// or, with robot="any", robots the market chooses (ErrandDriving).
+class Driving : public ErrandDriving {
  protected:
+  explicit Driving(const Params& p) : ErrandDriving(p.duration("stall_after")) {}
+  static bool any(const std::string& robot) { return robot == "any"; }
   void bind_wheels(const std::string& robot) {
     auto query = of_type("Navigation");
     if (!robot.empty()) query.on_device(robot + "_wheels");
@@ -205,6 +413,7 @@ class Driving : public Behavior {
       // Halted mid-drive: the robot stops rather than finish a trip nobody wants.
       if (arrived_) invoke(*wheels_, "stop", [&](auto done) { wheels_->proxy().stop_async(done); }, [](std::exception_ptr) {});
     }
+    if (market_) ErrandDriving::exit();
   }
 
   std::shared_ptr<NavigationService> wheels_;
@@ -219,12 +428,17 @@ class Driving : public Behavior {
 class GoToUser final : public Driving {
  public:
   explicit GoToUser(const Params& p)
-      : user_(p.string("user")), search_(p.list("search")), robot_(p.string("robot")), timeout_(p.duration("timeout")) {}
+      : Driving(p), user_(p.string("user")), search_(p.list("search")), robot_(p.string("robot")), timeout_(p.duration("timeout")) {}
 
  protected:
   void entry() override {
-    bind_wheels(robot_);
-    locator_ = require<UserLocator>(of_type("UserLocator"));
+    if (any(robot_)) {
+      bind_market();
+    } else {
+      bind_wheels(robot_);
+    }
+    locator_ = require<UserLocator>(robot_.empty() || any(robot_) ? of_type("UserLocator")
+                                                                   : of_type("UserLocator").carried_by(robot_));
     if (search_.empty()) {
       std::set<std::string> rooms;
       for (const auto& service : services().all()) {
@@ -243,18 +457,50 @@ class GoToUser final : public Driving {
   static std::string format_duration(Time d) { return fmt::format("{} s", d.count() / 1000); }
 
   void look() {
+    if (market_) {
+      // Robots the market chose: every robot's camera looks (the one that just searched a place
+      // first), until one sees the user.
+      cameras_.clear();
+      if (!searcher_.empty()) {
+        for (const auto& l : services().find(of_type("UserLocator").carried_by(searcher_).available())) cameras_.push_back(l);
+      }
+      for (const auto& l : services().find(of_type("UserLocator").available())) {
+        if (std::find(cameras_.begin(), cameras_.end(), l) == cameras_.end()) cameras_.push_back(l);
+      }
+      look_with(0);
+      return;
+    }
     locator_->locate(guard([this](std::exception_ptr e, std::vector<UserLocation> seen) {
       if (e) {
         fail("could not look for the user: " + describe(e));
         return;
       }
-      for (const auto& u : seen) {
-        if (!user_.empty() && u.person != user_) continue;
-        note(fmt::format("sees {} at ({:.1f}, {:.1f})", u.person, u.x, u.y));
-        approach(u);
-        return;
-      }
+      if (!saw(seen)) search_next();
+    }));
+  }
+  // Approaches the user if `seen` holds them.
+  bool saw(const std::vector<UserLocation>& seen) {
+    for (const auto& u : seen) {
+      if (!user_.empty() && u.person != user_) continue;
+      note(fmt::format("sees {} at ({:.1f}, {:.1f})", u.person, u.x, u.y));
+      approach(u);
+      return true;
+    }
+    return false;
+  }
+  void look_with(std::size_t i) {
+    if (i >= cameras_.size()) {
       search_next();
+      return;
+    }
+    auto locator = std::dynamic_pointer_cast<UserLocator>(cameras_[i]);
+    if (!locator) {
+      look_with(i + 1);
+      return;
+    }
+    locator->locate(guard([this, i](std::exception_ptr e, std::vector<UserLocation> seen) {
+      if (e) note("could not look with " + cameras_[i]->id() + ": " + describe(e));
+      if (e || !saw(seen)) look_with(i + 1);
     }));
   }
   void search_next() {
@@ -263,24 +509,42 @@ class GoToUser final : public Driving {
       return;
     }
     const auto place = search_[next_++];
+    if (market_) {
+      send_robot(place, coros::Place{place, 0, 0}, [this, place](bool reached, const std::string& robot, const std::string& why) {
+        if (!reached) note(fmt::format("cannot search {}: {}", place, why));
+        searcher_ = robot;
+        reached ? look() : search_next();
+      });
+      return;
+    }
     drive_to(place, [this](bool) { look(); }, [this, place](std::string why) {
       note(fmt::format("cannot search {}: {}", place, why));
       search_next();
     });
   }
+  void reached(const UserLocation& u, const std::string& robot) {
+    Event reached("ReachedUser");
+    reached.set("user", u.person);
+    reached.set("x", u.x);
+    reached.set("y", u.y);
+    if (!robot.empty()) reached.set("robot", robot);
+    propagate(std::move(reached));
+    succeed();
+  }
   void approach(const UserLocation& u) {
+    if (market_) {
+      send_robot(u.person, coros::Place{"", u.x, u.y}, [this, u](bool ok, const std::string& robot, const std::string& why) {
+        ok ? reached(u, robot) : fail(fmt::format("cannot reach {}: {}", u.person, why));
+      });
+      return;
+    }
     drive_to(u.x, u.y,
              [this, u](bool ok) {
                if (!ok) {
                  fail(fmt::format("stopped before reaching {}", u.person));
                  return;
                }
-               Event reached("ReachedUser");
-               reached.set("user", u.person);
-               reached.set("x", u.x);
-               reached.set("y", u.y);
-               propagate(std::move(reached));
-               succeed();
+               reached(u, "");
              },
              [this, u](std::string why) { fail(fmt::format("cannot reach {}: {}", u.person, why)); });
   }
@@ -290,6 +554,8 @@ class GoToUser final : public Driving {
   std::string robot_;
   Time timeout_;
   std::shared_ptr<UserLocator> locator_;
+  std::vector<std::shared_ptr<s::Service>> cameras_;  // robot="any": the locators to look with
+  std::string searcher_;                                // robot="any": the robot that searched last
   std::size_t next_ = 0;
 };
 
@@ -297,10 +563,17 @@ class GoToUser final : public Driving {
 
 class GoTo final : public Driving {
  public:
-  explicit GoTo(const Params& p) : target_(p.string("target")), robot_(p.string("robot")) {}
+  explicit GoTo(const Params& p) : Driving(p), target_(p.string("target")), robot_(p.string("robot")) {}
 
  protected:
   void entry() override {
+    if (any(robot_)) {
+      bind_market();
+      send_robot(target_, coros::Place{target_, 0, 0}, [this](bool reached, const std::string&, const std::string& why) {
+        reached ? succeed() : fail(why);
+      });
+      return;
+    }
     bind_wheels(robot_);
     drive_to(target_, [this](bool ok) { ok ? succeed() : fail("stopped before reaching " + target_); },
              [this](std::string why) { fail(why); });
@@ -320,12 +593,16 @@ class GoTo final : public Driving {
 class PatrolHome final : public Driving {
  public:
   explicit PatrolHome(const Params& p)
-      : waypoints_(p.list("waypoints")), rounds_(static_cast<int>(p.integer("rounds"))), robot_(p.string("robot")) {}
+      : Driving(p), waypoints_(p.list("waypoints")), rounds_(static_cast<int>(p.integer("rounds"))), robot_(p.string("robot")) {}
 
  protected:
   void entry() override {
     if (waypoints_.empty()) throw BehaviorError("no waypoints to patrol");
-    bind_wheels(robot_);
+    if (any(robot_)) {
+      bind_market();
+    } else {
+      bind_wheels(robot_);
+    }
     for (const auto& m : services().find(of_type("MotionSensor").available())) {
       if (auto sensor = std::dynamic_pointer_cast<MotionSensorService>(m)) listen(sensor);
     }
@@ -333,7 +610,7 @@ class PatrolHome final : public Driving {
     round_ = 0;
     reached_ = 0;
     skipped_.clear();
-    visit_next();
+    market_ ? share_round() : visit_next();
   }
   void handle_event(const Event& e) override {
     if (on_position(e)) return;
@@ -346,17 +623,43 @@ class PatrolHome final : public Driving {
   }
 
  private:
+  // Ends a round: true when the patrol is over (succeeded or failed).
+  bool round_over() {
+    if (++round_ < rounds_) return false;
+    if (reached_ == 0) {
+      fail(fmt::format("reached no waypoint (skipped {})", fmt::join(skipped_, ", ")));
+    } else {
+      succeed();
+    }
+    return true;
+  }
+  // robot="any": the round's waypoints are auctioned one by one among the robots, each going
+  // to the robot that adds the least driving to what it already has to do; the robots drive
+  // their shares at once, and a robot's share goes to the others when it fails.
+  void share_round() {
+    for (std::size_t i = 0; i < waypoints_.size(); ++i) {
+      const auto waypoint = waypoints_[i];
+      send_robot(waypoint, coros::Place{waypoint, 0, 0},
+                 [this, waypoint, i](bool ok, const std::string& robot, const std::string& why) {
+                   if (ok) {
+                     ++reached_;
+                     Event reached("WaypointReached");
+                     reached.set("waypoint", waypoint);
+                     reached.set("index", static_cast<std::int32_t>(i));
+                     reached.set("robot", robot);
+                     propagate(std::move(reached));
+                   } else {
+                     note(fmt::format("skips {}: {}", waypoint, why));
+                     skipped_.push_back(waypoint);
+                   }
+                   if (open_stops() == 0 && !round_over()) share_round();
+                 });
+    }
+  }
   void visit_next() {
     if (next_ == waypoints_.size()) {
       next_ = 0;
-      if (++round_ == rounds_) {
-        if (reached_ == 0) {
-          fail(fmt::format("reached no waypoint (skipped {})", fmt::join(skipped_, ", ")));
-        } else {
-          succeed();
-        }
-        return;
-      }
+      if (round_over()) return;
     }
     const auto waypoint = waypoints_[next_];
     const auto index = next_++;
@@ -639,6 +942,8 @@ void LookAtSound::handle_event(const Event& e) {
 
 void register_behaviors(BehaviorRegistry& registry) {
   using T = ParamType;
+  constexpr const char* kRobotParam = "which robot (default: the first); \"any\": the robots bid for the work (RobotMarket)";
+  constexpr const char* kStallParam = "robot=\"any\": a robot that reports no motion for this long while driving loses the stop to another";
   registry.add<Sense>("Sense", "propagates the events of sensor services",
                       {param("service", T::string, std::nullopt,
                              "service type: OccupancySensor, SpeechSensor, MotionSensor, SoundSensor, Navigation, UserLocator, "
@@ -651,15 +956,18 @@ void register_behaviors(BehaviorRegistry& registry) {
   registry.add<GoToUser>("GoToUser", "finds the user with the robot's camera and drives to them",
                          {param("user", T::string, "", "who to go to (default: whoever the camera sees first)").naming("user"),
                           param("search", T::list, "", "rooms or waypoints to search in order (default: every room)").naming("place"),
-                          param("robot", T::string, "", "which robot (default: the first)").naming("robot"),
-                          param("timeout", T::duration, "5min", "fail if not next to the user by then")});
+                          param("robot", T::string, "", kRobotParam).naming("robot"),
+                          param("timeout", T::duration, "5min", "fail if not next to the user by then"),
+                          param("stall_after", T::duration, "2min", kStallParam)});
   registry.add<GoTo>("GoTo", "drives the robot to a waypoint, furniture or room",
                      {param("target", T::string, std::nullopt, "where").naming("place"),
-                      param("robot", T::string, "", "which robot (default: the first)").naming("robot")});
+                      param("robot", T::string, "", kRobotParam).naming("robot"),
+                      param("stall_after", T::duration, "2min", kStallParam)});
   registry.add<PatrolHome>("PatrolHome", "drives a round of waypoints, reporting motion",
                            {param("waypoints", T::list, std::nullopt, "the round, in order").naming("waypoint"),
                             param("rounds", T::integer, "1", "how many rounds"),
-                            param("robot", T::string, "", "which robot (default: the first)").naming("robot")});
+                            param("robot", T::string, "", kRobotParam + std::string("; \"any\" splits the round among the robots")).naming("robot"),
+                            param("stall_after", T::duration, "2min", kStallParam)});
   registry.add<VoiceTVControl>("VoiceTVControl", "controls the TV by voice: turn on/off the TV, channel N, volume up/down",
                                {param("room", T::string, "", "the TV's room (default: any)").naming("room"),
                                 param("volume_step", T::integer, "5", "volume change per command")});
@@ -687,8 +995,8 @@ void register_behaviors(BehaviorRegistry& registry) {
   registry.declare_events("Sense", {event_spec<OccupancyEvent>(), event_spec<MotionEvent>(), event_spec<SpeechEvent>(),
                                     event_spec<UnrecognizedSpeech>(), event_spec<SoundDirection>(), event_spec<SoundEvent>(), event_spec<PositionEvent>(), event_spec<UserLocation>(),
                                     event_spec<MeasurementEvent>()});
-  registry.declare_events("GoToUser", {{"ReachedUser", {"user", "x", "y"}}});
-  registry.declare_events("PatrolHome", {{"WaypointReached", {"waypoint", "index"}}, {"MotionDetected", {"room", "device"}}});
+  registry.declare_events("GoToUser", {{"ReachedUser", {"user", "x", "y", "robot"}}});
+  registry.declare_events("PatrolHome", {{"WaypointReached", {"waypoint", "index", "robot"}}, {"MotionDetected", {"room", "device"}}});
   for (const char* quiet : {"GoTo", "VoiceTVControl", "VoiceAudioControl", "LookAtSound", "MoodControl", "Speak", "SetLights"}) {
     registry.declare_events(quiet, {});
   }

@@ -132,6 +132,8 @@ class Behavior : public Owner {
   service::ServiceContainer& services() { return env_->services; }
   Time now() const { return env_->runtime.now(); }
   void note(std::string text);  // a line in the trace, from this behavior
+  // A trace record of `kind` from this behavior, with details for machines (docs/trace.md).
+  void record(std::string kind, std::string text, std::vector<std::pair<std::string, TraceValue>> fields = {});
 
   static service::ServiceQuery of_type(std::string type) { return service::ServiceQuery::of_type(std::move(type)); }
   // The first available service matching `query` that is an S, or null.
@@ -264,7 +266,6 @@ class Behavior : public Owner {
   // Traces the failure of call `op` from any thread, even after this activation (or this
   // behavior) ended: it holds only the trace and the runtime, which outlive every behavior.
   std::function<void(std::exception_ptr)> failure_recorder(const std::string& op) const;
-  void record(std::string kind, std::string text, std::vector<std::pair<std::string, TraceValue>> fields = {});
 
   std::string type_;
   std::string name_;

@@ -51,6 +51,10 @@ enum class MessageCode : std::uint16_t {
   task_status = 15,  // progress of a task, broadcast by the robot doing it
   result = 16,       // the task ended: delivered or failed
   result_ack = 17,   // the auctioneer got the result
+  // Errands (errands.h): single stops auctioned one after another; BID, AWARD_ACK and REVOKE
+  // are shared with the courier market.
+  errand_auction = 20,  // a stop for sale: bid the cost of appending it to your route
+  errand_award = 21,    // the auctioneer gives the stop to the winner
 };
 std::string_view to_string(MessageCode code);
 
@@ -163,6 +167,30 @@ struct ResultAckMessage {
   bool operator==(const ResultAckMessage&) const = default;
 };
 
+// An errand for sale (errands.h): one stop a robot is to drive to. Robots bid what appending it
+// to the route they are committed to would cost them. A stop with a name is located on each
+// robot's own map (a waypoint, furniture or room); one without a name is at (x, y).
+struct ErrandAuctionMessage {
+  std::string errand;
+  std::int32_t round = 1;
+  std::string auctioneer;
+  Place stop;
+  std::int32_t window_ms = 0;
+  std::vector<std::string> exclude;  // robots that must not bid
+  static constexpr MessageCode kCode = MessageCode::errand_auction;
+  bool operator==(const ErrandAuctionMessage&) const = default;
+};
+
+struct ErrandAwardMessage {
+  std::string errand;
+  std::int32_t round = 1;
+  std::string robot;  // the winner
+  Place stop;
+  double cost = 0;  // the winning bid
+  static constexpr MessageCode kCode = MessageCode::errand_award;
+  bool operator==(const ErrandAwardMessage&) const = default;
+};
+
 }  // namespace icars::coros
 
 PLANET_VALUED(icars::coros::Place, name, x, y);
@@ -178,6 +206,8 @@ PLANET_VALUED(icars::coros::TaskStatusMessage, task_id, round, robot, auctioneer
 PLANET_VALUED(icars::coros::ResultMessage, task_id, round, robot, success, distance, duration_s,
               detail);
 PLANET_VALUED(icars::coros::ResultAckMessage, task_id, round, robot);
+PLANET_VALUED(icars::coros::ErrandAuctionMessage, errand, round, auctioneer, stop, window_ms, exclude);
+PLANET_VALUED(icars::coros::ErrandAwardMessage, errand, round, robot, stop, cost);
 
 namespace icars::coros {
 

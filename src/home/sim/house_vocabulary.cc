@@ -15,6 +15,8 @@ behavior::Vocabulary house_vocabulary(const sim::House& house) {
   for (const auto id : {kSpeechEngineId, kVisionEngineId, kSimulatorId}) names["device"].insert(std::string(id));
   for (const auto& u : house.users) names["user"].insert(u.id);
   for (const auto& r : house.robots) names["robot"].insert(r.id);
+  // robot="any": the robot market chooses (docs/distribution.md, "Robots").
+  if (!house.robots.empty()) names["robot"].insert("any");
   // Every kind is listed, also when the house has none of it: a name of it is then wrong.
   for (const char* kind : {"room", "waypoint", "furniture", "device", "user", "robot"}) names[kind];
   auto& place = names["place"];

@@ -53,10 +53,18 @@ SimulatedHouse::SimulatedHouse(sim::House house, SimulatedHouseOptions options)
     if (!mqtt.logger) mqtt.logger = options_.logger;
     mqtt_ = std::make_unique<SimulatedMqttDevices>(*world_, std::move(over_mqtt), options_.effects, std::move(mqtt));
   }
+  if (options_.fleet) {
+    std::vector<std::string> robots;
+    for (const auto* spec : hosted) {
+      if (spec->type == "Wheels" && !spec->carrier.empty()) robots.push_back(spec->carrier);
+    }
+    agents_ = std::make_unique<RobotAgents>(*world_, robots, *options_.fleet);
+  }
   if (!options_.activity) driver_ = std::make_unique<RealTimeDriver>(clock_, options_.speedup);
 }
 
 SimulatedHouse::~SimulatedHouse() {
+  agents_.reset();  // they read the world
   if (driver_) driver_->stop();
   mqtt_.reset();
   manager_.reset();
@@ -69,6 +77,7 @@ void SimulatedHouse::start(const std::string& host, std::uint16_t port) {
   if (state_) state_->start();
   if (mqtt_) mqtt_->start();
   if (driver_) driver_->start();
+  if (agents_) agents_->start();
   manager_->connect(host, port);
 }
 
@@ -77,6 +86,7 @@ void SimulatedHouse::start(std::vector<device::DeviceManager::ServerAddress> ser
   if (state_) state_->start();
   if (mqtt_) mqtt_->start();
   if (driver_) driver_->start();
+  if (agents_) agents_->start();
   manager_->connect(std::move(servers), failover_after);
 }
 

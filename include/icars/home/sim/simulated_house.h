@@ -15,6 +15,8 @@
 #include "icars/clock/activity.h"
 #include "icars/clock/sim_clock.h"
 #include "icars/device/device_manager.h"
+#include "icars/coros/knowledge.h"
+#include "icars/home/sim/robot_agents.h"
 #include "icars/home/sim/sim_devices.h"
 #include "icars/home/sim/sim_mqtt_devices.h"
 #include "icars/home/sim/sim_state_file.h"
@@ -51,6 +53,10 @@ struct SimulatedHouseOptions {
   // them (SimulatedMqttDevices; `activity` is taken from above), for an MQTT bridge to bring
   // in; without it they are left to a real home's devices.
   std::optional<SimulatedMqttOptions> mqtt;
+  // Set: every robot whose Wheels this house hosts is also a COROS agent of this fleet (port,
+  // key, timings; id and role are the robot's) bidding for a RobotMarket's errands
+  // (robot_agents.h, docs/distribution.md "Robots").
+  std::optional<coros::AgentConfiguration> fleet;
 };
 
 class SimulatedHouse {
@@ -75,6 +81,7 @@ class SimulatedHouse {
   SimStateFile* state_file() { return state_.get(); }  // null without one
   planet::Communicator& communicator() { return *communicator_; }
   SimulatedMqttDevices* mqtt() { return mqtt_.get(); }  // null without SimulatedHouseOptions::mqtt
+  RobotAgents* robot_agents() { return agents_.get(); }  // null without SimulatedHouseOptions::fleet
 
  private:
   SimulatedHouseOptions options_;
@@ -84,6 +91,7 @@ class SimulatedHouse {
   std::unique_ptr<planet::Communicator> communicator_;
   std::unique_ptr<device::DeviceManager> manager_;
   std::unique_ptr<SimulatedMqttDevices> mqtt_;
+  std::unique_ptr<RobotAgents> agents_;
   std::unique_ptr<RealTimeDriver> driver_;  // null in lock-step
 };
 

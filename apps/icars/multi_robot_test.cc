@@ -1,0 +1,241 @@
+// A home with two robots allocated by the COROS market (docs/distribution.md, "Robots"):
+// examples/multi_robot/two_robot_home.xml on houses/two_robot_house.xml.
+//  - In one process (lock-step): the robots bid for every robot="any" behavior, the night patrol
+//    is split between them, every waypoint is reached once per round, and the trace holds the
+//    auctions with every robot's bid.
+//  - As processes: the mediator, a device manager with the house and robot1, one with robot2,
+//    the robots' COROS agents beside them. robot2's device manager is SIGKILLed at a seeded
+//    random moment of the night patrol: its waypoints are auctioned again and reached by robot1,
+//    every waypoint is reached once per round or reported, no task fails, the run reaches the
+//    morning, and the trace shows the re-auction with the bids.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <chrono>
+#include <csignal>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "house_processes.h"
+#include "icars/coros/authentication.h"
+#include "icars/coros/transport.h"
+#include "program_run.h"
+
+namespace {
+
+using namespace std::chrono_literals;
+using icars_test::json;
+using icars_test::str;
+
+const std::string kIcars = ICARS_BINARY;
+const std::string kDeviceManager = ICARS_DEVICE_MANAGER_BINARY;
+const std::string kSource = ICARS_SOURCE_DIR;
+const std::string kHouse = kSource + "/houses/two_robot_house.xml";
+const std::string kPolicy = kSource + "/examples/multi_robot/two_robot_home.xml";
+const std::vector<std::string> kPatrol = {"entrance", "living_room_center", "kitchen_corner",
+                                          "door",     "bedroom_center",     "bedroom_window"};
+constexpr int kRounds = 3;  // the policy's PatrolHome rounds
+
+std::vector<json> trace_of(const std::string& path) {
+  try {
+    return icars_test::read_json_lines(path);
+  } catch (const std::exception&) {
+    return {};
+  }
+}
+
+bool patrol_auction(const json& j) {
+  return str(j, "kind") == "auction" && str(j, "source").find("PatrolHome") != std::string::npos;
+}
+
+// What the night's patrol did, from the trace: who reached which waypoint, what was reported
+// instead, the transitions.
+struct Night {
+  std::map<std::string, int> reached;             // waypoint -> times reached
+  std::map<std::string, std::set<std::string>> by;  // robot -> waypoints it reached
+  std::vector<std::string> skipped;               // "skips <waypoint>: why" notes
+  std::vector<json> auctions, transitions;
+  bool failed_transition = false;
+};
+
+Night read_night(const std::vector<json>& trace) {
+  Night n;
+  for (const auto& j : trace) {
+    const auto kind = str(j, "kind");
+    if (kind == "event" && str(j, "event") == "WaypointReached" && str(j, "source") == "SleepMode") {
+      const auto waypoint = j.value(json::json_pointer("/properties/waypoint"), std::string());
+      ++n.reached[waypoint];
+      n.by[j.value(json::json_pointer("/properties/robot"), std::string())].insert(waypoint);
+    } else if (kind == "note" && str(j, "text").find("PatrolHome: skips ") != std::string::npos) {
+      n.skipped.push_back(str(j, "text"));
+    } else if (patrol_auction(j)) {
+      n.auctions.push_back(j);
+    } else if (kind == "transition") {
+      n.transitions.push_back(j);
+      if (str(j, "event") == "failed") n.failed_transition = true;
+    }
+  }
+  return n;
+}
+
+std::string dump(const std::vector<json>& records) {
+  std::string out;
+  for (const auto& j : records) out += j.dump() + "\n";
+  return out;
+}
+
+TEST(MultiRobot, InOneProcessTheRobotsBidAndTheNightPatrolIsSplitBetweenThem) {
+  const auto dir = icars_test::run_directory("", "icars_multi_robot");
+  const auto trace = (dir / "trace.jsonl").string();
+  const auto run = icars_test::run_program(
+      kIcars, "run " + kPolicy + " --world " + kHouse + " --quiet --trace " + trace, 600);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto records = trace_of(trace);
+  auto night = read_night(records);
+
+  EXPECT_FALSE(night.failed_transition) << dump(night.transitions);
+  // Both robots bid for every stop; each of the 6 waypoints x 3 rounds was awarded once.
+  std::vector<json> awarded;
+  for (const auto& a : night.auctions) {
+    if (str(a, "outcome") != "awarded") continue;
+    awarded.push_back(a);
+    EXPECT_TRUE(a.contains("bid.robot1") && a.contains("bid.robot2")) << a.dump();
+    EXPECT_EQ(a.value("cost", -1.0), std::min(a.value("bid.robot1", 1e9), a.value("bid.robot2", 1e9))) << a.dump();
+  }
+  EXPECT_EQ(awarded.size(), kPatrol.size() * kRounds) << dump(night.auctions);
+  // Every waypoint reached once per round, and the work shared.
+  for (const auto& w : kPatrol) EXPECT_EQ(night.reached[w], kRounds) << w;
+  EXPECT_TRUE(night.skipped.empty()) << night.skipped.front();
+  EXPECT_FALSE(night.by["robot1"].empty());
+  EXPECT_FALSE(night.by["robot2"].empty());
+  // The robots went to the user and docked through the market too.
+  EXPECT_TRUE(std::any_of(records.begin(), records.end(), [](const json& j) {
+    return str(j, "kind") == "auction" && str(j, "source").find("GoToUser") != std::string::npos &&
+           str(j, "outcome") == "awarded";
+  }));
+  EXPECT_TRUE(std::any_of(records.begin(), records.end(), [](const json& j) {
+    return str(j, "kind") == "auction" && str(j, "source").find("NightWatch/GoTo") != std::string::npos &&
+           str(j, "stop") == "dock" && str(j, "outcome") == "awarded";
+  }));
+  // The night ended in the morning: the user got up and the coordinator observes again.
+  ASSERT_FALSE(night.transitions.empty());
+  EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
+}
+
+TEST(MultiRobot, ARobotKilledMidPatrolHasItsWaypointsAuctionedAgainAndFinishedByTheOther) {
+  const auto dir = icars_test::run_directory("", "icars_multi_robot_kill");
+  const auto env = icars_test::child_environment();
+  const auto trace = (dir / "trace.jsonl").string();
+  // The fleet: a port of its own and a key only this run knows.
+  const auto port = std::to_string(icars::coros::free_udp_port());
+  const auto key = (dir / "fleet.key").string();
+  {
+    std::ofstream out(key);
+    out << icars::coros::FleetKey::generate().to_hex() << "\n";
+  }
+  ::chmod(key.c_str(), 0600);
+  const std::vector<std::string> fleet = {"--fleet-port", port, "--fleet-key", key};
+  const auto with_fleet = [&](std::vector<std::string> argv) {
+    argv.insert(argv.end(), fleet.begin(), fleet.end());
+    return argv;
+  };
+  // The house starts at 18:00; the managers start at 22:40 of it (--epoch in the past), with the
+  // user in bed, and run at 300x: the night is about 100 s.
+  constexpr double kSpeed = 300;
+  const auto epoch =
+      icars_test::SharedClock::wall_ms() - static_cast<std::int64_t>((4 * 3600 + 40 * 60) * 1000 / kSpeed);
+  const auto speed = std::to_string(kSpeed);
+
+  icars_test::Program mediator(
+      dir / "icars.stderr", env,
+      with_fleet({kIcars, "run", kPolicy, "--world", kHouse, "--external", "--listen", "127.0.0.1:0", "--until",
+                  "07:30", "--trace", trace, "--quiet"}));
+  std::vector<std::string> output;
+  const auto server_port = icars_test::start_mediator(mediator, output);
+  ASSERT_FALSE(server_port.empty()) << mediator.stderr_text();
+  const auto server = "127.0.0.1:" + server_port;
+  icars_test::Program house(
+      dir / "house.stderr", env,
+      with_fleet({kDeviceManager, "--house", kHouse, "--server", server, "--speedup", speed, "--epoch",
+                  std::to_string(epoch), "--devices",
+                  "tv,living_light,sofa_sensor,bedroom_light,bed_sensor,robot1_wheels,robot1_mic,robot1_speaker,"
+                  "robot1_camera"}));
+  icars_test::Program robot2(
+      dir / "robot2.stderr", env,
+      with_fleet({kDeviceManager, "--house", kHouse, "--server", server, "--speedup", speed, "--epoch",
+                  std::to_string(epoch), "--no-engines", "--no-simulator", "--devices", "robot2_wheels,robot2_camera"}));
+
+  // The moment of the kill: while robot2 holds a share of the patrol — once it has won a seeded
+  // random number of waypoints (1 to 3: in the first round or the second), a random part of a
+  // simulated second later (a leg takes 3 to 10 s).
+  const auto seed = static_cast<std::uint32_t>(std::random_device{}());
+  std::mt19937 random(seed);
+  const auto awards = static_cast<std::size_t>(std::uniform_int_distribution<int>(1, 3)(random));
+  const auto extra = std::chrono::microseconds(
+      static_cast<std::int64_t>(std::uniform_real_distribution<double>(0, 1)(random) * 1e6 / kSpeed));
+  SCOPED_TRACE(testing::Message() << "seed " << seed << ": robot2 killed once it won " << awards
+                                  << " waypoints, " << extra.count() << " us later");
+  const auto deadline = std::chrono::steady_clock::now() + 240s;
+  for (;;) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline)
+        << "robot2 never got its share of the patrol\n" << icars_test::tail(mediator.stderr_text());
+    ASSERT_FALSE(mediator.exited()) << icars_test::tail(mediator.stderr_text());
+    const auto night = read_night(trace_of(trace));
+    const auto won = std::count_if(night.auctions.begin(), night.auctions.end(), [](const json& a) {
+      return str(a, "outcome") == "awarded" && str(a, "robot") == "robot2";
+    });
+    if (static_cast<std::size_t>(won) >= awards) break;
+    std::this_thread::sleep_for(1ms);
+  }
+  std::this_thread::sleep_for(extra);
+  robot2.signal(SIGKILL);
+
+  const auto end = std::chrono::steady_clock::now() + 400s;
+  while (!mediator.exited()) {
+    ASSERT_LT(std::chrono::steady_clock::now(), end) << "the run did not reach 07:30";
+    std::this_thread::sleep_for(100ms);
+  }
+  EXPECT_TRUE(icars_test::exit_problems("icars", mediator.wait(), mediator.stderr_text()).empty())
+      << icars_test::tail(mediator.stderr_text());
+  house.signal(SIGTERM);
+  EXPECT_TRUE(icars_test::exit_problems("house", house.wait(), house.stderr_text()).empty())
+      << icars_test::tail(house.stderr_text());
+  robot2.wait();
+
+  const auto records = trace_of(trace);
+  auto night = read_night(records);
+  EXPECT_FALSE(night.failed_transition) << dump(night.transitions);
+  // Every waypoint reached once per round, or reported.
+  for (const auto& w : kPatrol) {
+    const auto reported = std::count_if(night.skipped.begin(), night.skipped.end(),
+                                        [&](const std::string& s) { return s.find("skips " + w + ":") != std::string::npos; });
+    EXPECT_EQ(night.reached[w] + reported, kRounds) << w << "\n" << dump(night.auctions);
+  }
+  // robot2's share went to robot1: a re-auction naming robot2 and why, then an award to robot1
+  // with the bids of that round (robot2 excluded).
+  const auto lost = std::find_if(night.auctions.begin(), night.auctions.end(), [](const json& a) {
+    return str(a, "outcome") == "reauction" && str(a, "robot") == "robot2";
+  });
+  ASSERT_NE(lost, night.auctions.end()) << "no re-auction of robot2's waypoints\n" << dump(night.auctions);
+  EXPECT_FALSE(str(*lost, "reason").empty()) << lost->dump();
+  const auto again = std::find_if(lost, night.auctions.end(), [&](const json& a) {
+    return str(a, "outcome") == "awarded" && str(a, "errand") == str(*lost, "errand");
+  });
+  ASSERT_NE(again, night.auctions.end()) << dump(night.auctions);
+  EXPECT_EQ(str(*again, "robot"), "robot1") << again->dump();
+  EXPECT_TRUE(again->contains("bid.robot1")) << again->dump();
+  EXPECT_FALSE(again->contains("bid.robot2")) << again->dump();
+  EXPECT_NE(str(*again, "excluded").find("robot2"), std::string::npos) << again->dump();
+  EXPECT_GE(again->value("round", 0), 2) << again->dump();
+  // The morning: the user got up and the coordinator observes again.
+  ASSERT_FALSE(night.transitions.empty());
+  EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
+}
+
+}  // namespace

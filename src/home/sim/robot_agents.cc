@@ -1,0 +1,55 @@
+#include "icars/home/sim/robot_agents.h"
+
+#include <stdexcept>
+
+#include "icars/coros/discovery.h"
+#include "icars/coros/robot.h"
+
+namespace icars::home {
+
+RobotAgents::RobotAgents(sim::World& world, const std::vector<std::string>& robots,
+                         const coros::AgentConfiguration& base) {
+  for (const auto& id : robots) {
+    const auto& specs = world.house().robots;
+    auto spec = std::find_if(specs.begin(), specs.end(), [&](const sim::RobotSpec& r) { return r.id == id; });
+    if (spec == specs.end()) throw std::invalid_argument("the house has no robot \"" + id + "\"");
+    auto config = base;
+    config.id = id;
+    config.role = "robot";
+    auto map = std::make_shared<const coros::MapPlanner>(world.house(), spec->radius);
+    Robot r;
+    r.agent = std::make_unique<coros::Agent>(config);
+    r.agent->add_operator(std::make_shared<coros::DiscoveryOperator>());
+    r.bidder = std::make_shared<coros::ErrandBidder>(map, [&world, id]() -> std::optional<sim::Point> {
+      const auto pose = world.robot_pose(id);
+      return sim::Point{pose.x, pose.y};
+    }, coros::ErrandBidder::Objective::arrival);  // spread the work: the soonest done wins
+    r.agent->add_operator(r.bidder);
+    robots_.emplace_back(id, std::move(r));
+  }
+}
+
+RobotAgents::~RobotAgents() { stop(); }
+
+void RobotAgents::start() {
+  for (auto& [id, r] : robots_) r.agent->start();
+}
+
+void RobotAgents::stop() {
+  for (auto& [id, r] : robots_) r.agent->stop();
+}
+
+std::vector<coros::Agent*> RobotAgents::agents() {
+  std::vector<coros::Agent*> out;
+  for (auto& [id, r] : robots_) out.push_back(r.agent.get());
+  return out;
+}
+
+std::vector<std::string> RobotAgents::route(const std::string& robot) {
+  for (auto& [id, r] : robots_) {
+    if (id == robot) return r.agent->call([&r = r] { return r.bidder->route(); });
+  }
+  return {};
+}
+
+}  // namespace icars::home
