@@ -126,6 +126,27 @@ bool OccupancyGrid::free(Point p) const {
 
 int OccupancyGrid::component(Cell c) const { return inside(c) ? component_[index(c)] : -1; }
 
+OccupancyGrid OccupancyGrid::with_discs(const std::vector<Disc>& discs) const {
+  OccupancyGrid out = *this;
+  if (discs.empty()) return out;
+  const double half_diagonal = resolution_ * std::numbers::sqrt2 / 2;
+  for (const auto& d : discs) {
+    const double clear = d.radius + inflate_radius_ + half_diagonal;
+    const auto lo = cell_of({d.at.x - clear, d.at.y - clear});
+    const auto hi = cell_of({d.at.x + clear, d.at.y + clear});
+    const int x0 = lo ? lo->x : 0, y0 = lo ? lo->y : 0;
+    const int x1 = hi ? hi->x : width_ - 1, y1 = hi ? hi->y : height_ - 1;
+    for (int y = std::max(0, y0); y <= std::min(height_ - 1, y1); ++y) {
+      for (int x = std::max(0, x0); x <= std::min(width_ - 1, x1); ++x) {
+        const Point c = center_of({x, y});
+        if (std::hypot(c.x - d.at.x, c.y - d.at.y) < clear) out.free_[out.index({x, y})] = 0;
+      }
+    }
+  }
+  out.label_components();
+  return out;
+}
+
 std::size_t OccupancyGrid::free_cells() const {
   return static_cast<std::size_t>(std::count(free_.begin(), free_.end(), std::uint8_t{1}));
 }

@@ -38,20 +38,65 @@ Time travel_time(double metres, double speed) {
   return Time(std::llround(metres / speed * 1000.0));
 }
 
-// A body moving along a path at constant speed from `start`.
+// A body moving along a path at constant speed from `start`, waiting `pause` on the way
+// `pause_at` metres along it.
 struct Motion {
   std::vector<Point> path;
   double length = 0;
   double speed = 1;
   Time start{0};
+  double pause_at = 0;
+  Time pause{0};
 
-  Time end() const { return start + travel_time(length, speed); }
+  Time end() const { return start + travel_time(length, speed) + pause; }
   Pose last() const { return point_along(path, length); }  // exactly the end of the path
-  Pose at(Time now) const {
+  double along(Time now) const {
     const double elapsed = static_cast<double>((now - start).count()) / 1000.0;
-    return point_along(path, std::clamp(elapsed * speed, 0.0, length));
+    double d = elapsed * speed;
+    if (pause.count() > 0 && d > pause_at) {
+      const double resume = pause_at / speed + static_cast<double>(pause.count()) / 1000.0;
+      d = elapsed <= resume ? pause_at : pause_at + (elapsed - resume) * speed;
+    }
+    return std::clamp(d, 0.0, length);
+  }
+  Pose at(Time now) const { return point_along(path, along(now)); }
+  // When the body is `d` metres along the path (arriving there, for the pause's place).
+  Time when_at(double d) const {
+    Time t = start + travel_time(d, speed);
+    if (pause.count() > 0 && d > pause_at) t += pause;
+    return t;
   }
 };
+
+// Robots take turns at a door narrower than two of them side by side with this to spare; a
+// robot is in a door while its centre is within its radius and this of the opening.
+constexpr double kDoorClearance = 0.1;
+// A robot waiting for a door stops this far before it, and lets this much time pass after the
+// other robot is through.
+constexpr double kDoorWaitBefore = 0.2;
+constexpr Time kDoorMargin{500};
+
+double distance_to_segment(Point p, Point a, Point b) {
+  const double dx = b.x - a.x, dy = b.y - a.y;
+  const double len2 = dx * dx + dy * dy;
+  const double t = len2 == 0 ? 0 : std::clamp(((p.x - a.x) * dx + (p.y - a.y) * dy) / len2, 0.0, 1.0);
+  return std::hypot(p.x - (a.x + t * dx), p.y - (a.y + t * dy));
+}
+
+// The stretch of `path` [first, last] (metres along it) where a body of `radius` is in `door`.
+std::optional<std::pair<double, double>> door_stretch(const std::vector<Point>& path, double length,
+                                                      const Door& door, double radius) {
+  constexpr double kStep = 0.05;
+  std::optional<std::pair<double, double>> out;
+  for (double d = 0;; d = std::min(d + kStep, length)) {
+    if (distance_to_segment(point_along(path, d).position(), door.a, door.b) < radius + kDoorClearance) {
+      if (!out) out.emplace(d, d);
+      out->second = d;
+    }
+    if (d >= length) break;
+  }
+  return out;
+}
 
 std::uint64_t splitmix64(std::uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;
@@ -103,6 +148,11 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
 
     Pose pose_at(Time now) const { return motion ? motion->at(now) : pose; }
   };
+  // A robot's motion holds a narrow door from when it enters to when it is through.
+  struct DoorHold {
+    std::string robot;
+    Time from{0}, to{0};
+  };
 
   struct Pending {
     ScheduleEntry entry;
@@ -128,6 +178,7 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   std::map<double, std::shared_ptr<const OccupancyGrid>> grids;
   std::map<std::string, Robot, std::less<>> robots;
   std::map<std::string, User, std::less<>> users;
+  std::map<std::string, std::vector<DoorHold>, std::less<>> door_holds;  // door -> holds
   std::map<std::string, std::string, std::less<>> occupancy;  // furniture -> user
   std::unordered_set<std::uint64_t> timers;                   // our pending clock events
   std::mutex delivery_mutex;                                  // held while listeners run
@@ -225,7 +276,42 @@ struct World::Impl : std::enable_shared_from_this<Impl> {
   // --- robots --------------------------------------------------------------------------------
 
   // Ends the current motion where the robot is now; its `done` hears false.
+  void release_doors(const std::string& robot) {
+    for (auto& [door, holds] : door_holds) {
+      std::erase_if(holds, [&](const DoorHold& h) { return h.robot == robot; });
+    }
+  }
+
+  // Makes motion `m` of `r` wait before every narrow door another robot's motion holds at the
+  // time `m` would pass, and holds the doors it passes. Lock held; `r` has no motion.
+  void take_turns_at_doors(const Robot& r, Motion& m, Time now) {
+    release_doors(r.spec->id);
+    for (auto& [door, holds] : door_holds) std::erase_if(holds, [&](const DoorHold& h) { return h.to < now; });
+    for (const auto& door : house.doors) {
+      const auto stretch = door_stretch(m.path, m.length, door, r.spec->radius);
+      if (!stretch) continue;
+      auto& holds = door_holds[door.name];
+      const double width = std::hypot(door.b.x - door.a.x, door.b.y - door.a.y);
+      // A robot starting in the doorway goes on through: it is the one the others wait for.
+      for (int turn = 0; stretch->first > kDoorWaitBefore && turn < 16; ++turn) {
+        const Time enter = m.when_at(stretch->first), leave = m.when_at(stretch->second);
+        const auto conflict = std::find_if(holds.begin(), holds.end(), [&](const DoorHold& h) {
+          const auto other = robots.find(h.robot);
+          const double other_radius = other == robots.end() ? 0 : other->second.spec->radius;
+          const bool narrow = width < 2 * (r.spec->radius + other_radius) + kDoorClearance;
+          return h.robot != r.spec->id && narrow && h.from < leave && enter < h.to;
+        });
+        if (conflict == holds.end()) break;
+        const double wait_at = stretch->first - kDoorWaitBefore;
+        if (m.pause.count() == 0 || wait_at < m.pause_at) m.pause_at = wait_at;
+        m.pause += conflict->to - enter + kDoorMargin;
+      }
+      holds.push_back(DoorHold{r.spec->id, m.when_at(stretch->first), m.when_at(stretch->second)});
+    }
+  }
+
   void halt(Robot& r, Time now, Notes& notes) {
+    release_doors(r.spec->id);
     if (!r.motion) return;
     r.pose = r.motion->at(now);
     r.motion.reset();
@@ -481,11 +567,22 @@ std::optional<std::vector<Point>> World::move_robot(const std::string& robot, Po
     auto& r = s.robot(robot);
     const auto now = s.clock.now();
     const auto from = r.pose_at(now);
-    const auto goal = s.options.snap_distance > 0
-                          ? r.grid->nearest_free(target, s.options.snap_distance, from.position())
-                          : std::optional<Point>(target);
-    if (!goal) return std::nullopt;
-    auto path = plan_path(*r.grid, from.position(), *goal);
+    const auto plan = [&](const OccupancyGrid& grid) -> std::optional<std::vector<Point>> {
+      const auto goal = s.options.snap_distance > 0
+                            ? grid.nearest_free(target, s.options.snap_distance, from.position())
+                            : std::optional<Point>(target);
+      if (!goal) return std::nullopt;
+      return plan_path(grid, from.position(), *goal);
+    };
+    // Around the other robots where they are now; through them when there is no way around (a
+    // robot standing in a doorway).
+    std::vector<OccupancyGrid::Disc> others;
+    for (const auto& [id, other] : s.robots) {
+      if (&other != &r) others.push_back({other.pose_at(now).position(), other.spec->radius});
+    }
+    std::optional<std::vector<Point>> path;
+    if (!others.empty()) path = plan(r.grid->with_discs(others));
+    if (!path) path = plan(*r.grid);
     if (!path) return std::nullopt;
     result = path;
 
@@ -496,6 +593,7 @@ std::optional<std::vector<Point>> World::move_robot(const std::string& robot, Po
     }
     Motion m{std::move(*path), 0, r.spec->speed, now};
     m.length = path_length(m.path);
+    if (s.robots.size() > 1) s.take_turns_at_doors(r, m, now);
     s.drive(r, std::move(m), std::move(done), now);
   }
   return result;
@@ -539,6 +637,23 @@ std::uint64_t World::on_robot_pose(std::function<void(const std::string&, const 
   return id;
 }
 
+void World::place_robot(const std::string& robot, const Pose& pose) {
+  if (!std::isfinite(pose.x) || !std::isfinite(pose.y) || !std::isfinite(pose.theta)) {
+    throw std::invalid_argument(fmt::format("robot \"{}\" placed at a pose that is not finite", robot));
+  }
+  auto& s = *impl_;
+  std::lock_guard lock(s.mutex);
+  auto& r = s.robot(robot);
+  const auto now = s.clock.now();
+  Impl::Notes notes;
+  s.halt(r, now, notes);
+  r.pose = pose;
+  std::erase_if(notes, [](const Impl::Note& n) { return std::holds_alternative<Impl::PoseNote>(n); });
+  if (!notes.empty()) {
+    s.schedule(now, [notes](Impl::Notes& n) { n.insert(n.end(), notes.begin(), notes.end()); });
+  }
+}
+
 std::vector<RobotState> World::robot_states() const {
   std::lock_guard lock(impl_->mutex);
   const auto now = impl_->clock.now();
@@ -549,6 +664,8 @@ std::vector<RobotState> World::robot_states() const {
     if (r.motion) {
       state.path = r.motion->path;
       state.start = r.motion->start;
+      state.pause_at = r.motion->pause_at;
+      state.pause = r.motion->pause;
     }
     out.push_back(std::move(state));
   }
@@ -572,7 +689,7 @@ void World::restore_robot(const RobotState& state, std::function<void(bool)> don
     r.pose = state.pose;
     notes.insert(notes.begin(), Impl::PoseNote{r.spec->id, r.pose, false});
   } else {
-    Motion m{state.path, path_length(state.path), r.spec->speed, state.start};
+    Motion m{state.path, path_length(state.path), r.spec->speed, state.start, state.pause_at, state.pause};
     if (now < state.at) m.start -= state.at - now;  // resume from state.pose
     if (now < m.end()) {
       s.drive(r, std::move(m), std::move(done), now);

@@ -536,5 +536,115 @@ TEST(World, DestroyingTheWorldCancelsItsEvents) {
   clock.advance_by(24h);  // nothing left to run
 }
 
+
+
+// --- Several robots in one world -------------------------------------------------------------------
+
+const std::filesystem::path kTwoRobotHouse = std::filesystem::path(ICARS_HOUSES_DIR) / "two_robot_house.xml";
+
+double distance_to_door(Point p, const Door& d) {
+  const double dx = d.b.x - d.a.x, dy = d.b.y - d.a.y;
+  const double t = std::clamp(((p.x - d.a.x) * dx + (p.y - d.a.y) * dy) / (dx * dx + dy * dy), 0.0, 1.0);
+  return std::hypot(p.x - (d.a.x + t * dx), p.y - (d.a.y + t * dy));
+}
+
+TEST(World, ARobotPlansAroundAnotherOneStandingInItsWay) {
+  const auto house = load_house(kTwoRobotHouse);
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  // robot2 stands in the middle of the living room; robot1 crosses the room through that spot.
+  const Point middle{3.0, 2.2};
+  world.place_robot("robot2", Pose{middle.x, middle.y, 0});
+  world.restore_robot(RobotState{"robot1", clock.now(), Pose{0.8, 2.2, 0}, {}, Time{0}});
+  clock.advance_by(0s);
+  const auto path = world.move_robot("robot1", Point{5.3, 2.2});
+  ASSERT_TRUE(path);
+  const double clear = house.robot("robot1")->radius + house.robot("robot2")->radius;
+  for (double d = 0; d <= path_length(*path); d += 0.02) {
+    EXPECT_GE(distance(point_along(*path, d).position(), middle), clear) << "at " << d << " m along the path";
+  }
+  EXPECT_GT(path_length(*path), 4.5 + 0.1);  // a detour, not the straight line
+  // Alone, the same trip is the straight line.
+  World alone(load_house(kPaperHouse), clock);
+  alone.restore_robot(RobotState{"robot1", clock.now(), Pose{0.8, 2.2, 0}, {}, Time{0}});
+  clock.advance_by(0s);
+  const auto straight = alone.move_robot("robot1", Point{5.3, 2.2});
+  ASSERT_TRUE(straight);
+  EXPECT_NEAR(path_length(*straight), 4.5, 1e-6);
+}
+
+TEST(World, TwoRobotsTakeTurnsAtANarrowDoor) {
+  const auto house = load_house(kTwoRobotHouse);
+  const auto* door = &house.doors.front();
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  // Both robots near the door, on either side, each driving to the other side at once.
+  world.restore_robot(RobotState{"robot1", clock.now(), Pose{5.0, 2.5, 0}, {}, Time{0}});
+  world.restore_robot(RobotState{"robot2", clock.now(), Pose{7.0, 2.5, 0}, {}, Time{0}});
+  clock.advance_by(0s);
+  bool arrived1 = false, arrived2 = false;
+  ASSERT_TRUE(world.move_robot("robot1", Point{7.5, 1.2}, [&](bool a) { arrived1 = a; }));
+  ASSERT_TRUE(world.move_robot("robot2", Point{4.5, 3.8}, [&](bool a) { arrived2 = a; }));
+  // Never both in the doorway; both get through.
+  const auto in_door = [&](const std::string& robot) {
+    return distance_to_door(world.robot_pose(robot).position(), *door) < house.robot(robot)->radius;
+  };
+  bool one_waited = false;
+  const auto start = clock.now();
+  while (!(arrived1 && arrived2) && clock.now() < start + 2min) {
+    clock.advance_by(100ms);
+    EXPECT_FALSE(in_door("robot1") && in_door("robot2")) << "both in the door at " << format_time(clock.now());
+    for (const auto& state : world.robot_states()) one_waited = one_waited || state.pause.count() > 0;
+  }
+  EXPECT_TRUE(arrived1 && arrived2);
+  EXPECT_TRUE(one_waited);
+  // The waiting motion is kept by the state: restored, it waits the same.
+}
+
+TEST(World, ARobotWaitingForADoorIsRestoredWithItsWait) {
+  const auto house = load_house(kTwoRobotHouse);
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  world.restore_robot(RobotState{"robot1", clock.now(), Pose{5.0, 2.5, 0}, {}, Time{0}});
+  world.restore_robot(RobotState{"robot2", clock.now(), Pose{7.0, 2.5, 0}, {}, Time{0}});
+  clock.advance_by(0s);
+  ASSERT_TRUE(world.move_robot("robot1", Point{7.5, 1.2}));
+  ASSERT_TRUE(world.move_robot("robot2", Point{4.5, 3.8}));
+  clock.advance_by(1s);
+  const auto states = world.robot_states();
+  const auto waiting = std::find_if(states.begin(), states.end(), [](const RobotState& s) { return s.pause.count() > 0; });
+  ASSERT_NE(waiting, states.end());
+  // Another world restores the waiting robot: it is where the first world has it, at every step.
+  SimClock clock2(clock.now());
+  World copy(house, clock2);
+  copy.restore_robot(*waiting);
+  for (int i = 0; i < 40; ++i) {
+    clock.advance_by(250ms);
+    clock2.advance_by(250ms);
+    EXPECT_NEAR(copy.robot_pose(waiting->robot).x, world.robot_pose(waiting->robot).x, 1e-6);
+    EXPECT_NEAR(copy.robot_pose(waiting->robot).y, world.robot_pose(waiting->robot).y, 1e-6);
+  }
+}
+
+TEST(World, APlacedRobotIsNotReportedAndEndsAMotionItHad) {
+  const auto house = load_house(kTwoRobotHouse);
+  SimClock clock(house.start_time);
+  World world(house, clock);
+  std::vector<std::string> reported;
+  world.on_robot_pose([&](const std::string& robot, const Pose&, bool) { reported.push_back(robot); });
+  std::optional<bool> done;
+  ASSERT_TRUE(world.move_robot("robot2", Point{7.5, 3.0}, [&](bool a) { done = a; }));
+  clock.advance_by(0s);
+  reported.clear();
+  world.place_robot("robot2", Pose{9.0, 1.0, 0});
+  clock.advance_by(1s);
+  EXPECT_EQ(done, std::optional<bool>(false));
+  EXPECT_TRUE(reported.empty());
+  EXPECT_FALSE(world.robot_moving("robot2"));
+  EXPECT_NEAR(world.robot_pose("robot2").x, 9.0, 1e-9);
+  EXPECT_THROW(world.place_robot("robot2", Pose{std::nan(""), 1.0, 0}), std::invalid_argument);
+  EXPECT_THROW(world.place_robot("robot9", Pose{1.0, 1.0, 0}), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace icars::sim

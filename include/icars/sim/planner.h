@@ -47,6 +47,13 @@ class OccupancyGrid {
   std::size_t free_cells() const;
   // Connected-component label of a free cell (same label = reachable), -1 for blocked cells.
   int component(Cell c) const;
+  // This grid with discs blocked as well: other bodies of radius `radius` at `at`, kept clear of
+  // by this grid's inflation radius (the robots of a world planning around one another).
+  struct Disc {
+    Point at;
+    double radius = 0;
+  };
+  OccupancyGrid with_discs(const std::vector<Disc>& discs) const;
 
  private:
   std::size_t index(Cell c) const {

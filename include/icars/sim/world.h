@@ -50,6 +50,10 @@ struct RobotState {
   Pose pose;                // where the robot was at `at`
   std::vector<Point> path;  // the path it is driving, from where it set off; empty: standing
   Time start{0};         // when it set off along `path`
+  // A wait on the way (another robot has the narrow door ahead): `pause` long, `pause_at`
+  // metres along the path.
+  double pause_at = 0;
+  Time pause{0};
   bool moving() const { return !path.empty(); }
   friend bool operator==(const RobotState&, const RobotState&) = default;
 };
@@ -80,9 +84,12 @@ class World {
   std::string robot_room(const std::string& robot) const;  // "" in a doorway outside rooms
   bool robot_moving(const std::string& robot) const;
 
-  // Plans from the robot's pose to `target` and drives along the path at the robot's speed,
+  // Plans from the robot's pose to `target` around the other robots where they stand now (when
+  // there is no way around them, through them), and drives along the path at the robot's speed,
   // reporting the pose to pose listeners when it starts (moving), every report_every, and on
-  // arrival (not moving). A target inside an obstacle (a user on the sofa) is replaced by
+  // arrival (not moving). Robots take turns at a narrow door (narrower than two of them side by
+  // side with 10 cm to spare): a robot whose path crosses one in the time another robot's motion
+  // holds it waits before the door until the door is free, still reported as moving. A target inside an obstacle (a user on the sofa) is replaced by
   // the nearest free reachable spot within snap_distance. Returns the path, or nullopt (and no
   // motion, no `done`) when unreachable. Otherwise `done` runs exactly once: true on arrival,
   // false if stop_robot() or a later move_robot() ends this motion first.
@@ -103,6 +110,11 @@ class World {
   std::uint64_t on_robot_pose(
       std::function<void(const std::string& robot, const Pose& pose, bool moving)> fn,
       Listening listening = Listening::reacting);
+
+  // A robot driven elsewhere (by another device manager's world, known from its announcements)
+  // stands at `pose` here, so that this world's robots plan around it; a motion it had here ends
+  // (its `done` hears false). Pose listeners are not told: the robot is not this world's to report.
+  void place_robot(const std::string& robot, const Pose& pose);
 
   // Every robot's state now, ordered by id.
   std::vector<RobotState> robot_states() const;

@@ -1,11 +1,46 @@
 #include "icars/home/sim/robot_agents.h"
 
+#include <cmath>
+#include <map>
+#include <set>
 #include <stdexcept>
 
 #include "icars/coros/discovery.h"
 #include "icars/coros/robot.h"
 
 namespace icars::home {
+
+namespace {
+// Puts the house's robots that other device managers drive where their agents say they are, so
+// the robots driven here plan around them and wait for them at doors (docs/distribution.md).
+class PlaceOtherRobots : public coros::SimpleOperator {
+ public:
+  PlaceOtherRobots(sim::World& world, std::set<std::string> here) : world_(world), here_(std::move(here)) {}
+  void init(coros::Agent& agent) override {
+    SimpleOperator::init(agent);
+    timer_ = agent.every(agent.config().hello_period, [this] { place(); });
+  }
+  void shutdown() override {
+    if (timer_) timer_->cancel();
+  }
+
+ private:
+  void place() {
+    for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
+      if (here_.contains(n.id) || world_.house().robot(n.id) == nullptr) continue;
+      if (!std::isfinite(n.x) || !std::isfinite(n.y)) continue;
+      const auto seen = std::make_pair(n.x, n.y);
+      if (placed_[n.id] == seen) continue;
+      placed_[n.id] = seen;
+      world_.place_robot(n.id, sim::Pose{n.x, n.y, 0});
+    }
+  }
+  sim::World& world_;
+  std::set<std::string> here_;
+  std::map<std::string, std::pair<double, double>> placed_;
+  std::shared_ptr<coros::Timer> timer_;
+};
+}  // namespace
 
 RobotAgents::RobotAgents(sim::World& world, const std::vector<std::string>& robots,
                          const coros::AgentConfiguration& base) {
@@ -25,6 +60,9 @@ RobotAgents::RobotAgents(sim::World& world, const std::vector<std::string>& robo
       return sim::Point{pose.x, pose.y};
     }, coros::ErrandBidder::Objective::arrival);  // spread the work: the soonest done wins
     r.agent->add_operator(r.bidder);
+    if (robots_.empty()) {
+      r.agent->add_operator(std::make_shared<PlaceOtherRobots>(world, std::set<std::string>(robots.begin(), robots.end())));
+    }
     robots_.emplace_back(id, std::move(r));
   }
 }

@@ -260,6 +260,13 @@ void SimStateFile::load() {
           state.path.push_back({p[0].get<double>(), p[1].get<double>()});
         }
         state.start = Time{field<std::int64_t>(r, "start_ms", where)};
+        if (r.contains("pause_ms")) {  // waiting for a door on the way
+          state.pause = Time{field<std::int64_t>(r, "pause_ms", where)};
+          state.pause_at = number(r, "pause_at", where);
+          if (state.pause.count() < 0 || state.pause_at < 0) {
+            throw Invalid(fmt::format("{}: a negative pause ({} ms at {} m)", where, state.pause.count(), state.pause_at));
+          }
+        }
       }
       try {
         world_.check_robot_state(state);
@@ -433,6 +440,10 @@ std::string SimStateFile::render() const {
       for (const auto& p : r.path) path.push_back({p.x, p.y});
       j["path"] = std::move(path);
       j["start_ms"] = r.start.count();
+      if (r.pause.count() > 0) {
+        j["pause_ms"] = r.pause.count();
+        j["pause_at"] = r.pause_at;
+      }
     }
     rs[r.robot] = std::move(j);
   }
