@@ -12,12 +12,21 @@ void add_fleet_options(CLI::App& app, FleetSettings& fleet, const std::string& w
   app.add_option("--fleet-key", fleet.key_file, "the fleet's key file (hex: openssl rand -hex 32 > fleet.key; docs/coros.md)")
       ->check(CLI::ExistingFile);
   app.add_flag("--fleet-insecure", fleet.insecure, "the fleet's datagrams are neither signed nor checked");
+  app.add_option("--fleet-address", fleet.address, "this host's IPv4 address on the fleet's network")
+      ->check(CLI::ValidIPV4)
+      ->capture_default_str();
+  app.add_option("--fleet-broadcast", fleet.broadcast,
+                 "the fleet network's broadcast address (robots on other hosts: the subnet's, e.g. 192.168.1.255)")
+      ->check(CLI::ValidIPV4)
+      ->capture_default_str();
 }
 
 coros::AgentConfiguration fleet_agent(const FleetSettings& fleet, const std::string& id) {
   coros::AgentConfiguration c;
   c.id = id;
   c.transport.broadcast_port = fleet.port;
+  c.transport.ip = fleet.address;
+  c.transport.broadcast_address = fleet.broadcast;
   if (!fleet.key_file.empty()) {
     try {
       c.transport.key = coros::FleetKey::load(fleet.key_file);

@@ -238,4 +238,54 @@ TEST(MultiRobot, ARobotKilledMidPatrolHasItsWaypointsAuctionedAgainAndFinishedBy
   EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
 }
 
+// The fleet's options: a clear reason and exit code 2, never a half-started fleet.
+TEST(MultiRobot, BadFleetOptionsStopWithTheReason) {
+  const auto dir = icars_test::run_directory("", "icars_multi_robot_bad");
+  const auto key = (dir / "fleet.key").string();
+  {
+    std::ofstream out(key);
+    out << icars::coros::FleetKey::generate().to_hex() << "\n";
+  }
+  ::chmod(key.c_str(), 0600);
+  const auto open_key = (dir / "open.key").string();
+  {
+    std::ofstream out(open_key);
+    out << icars::coros::FleetKey::generate().to_hex() << "\n";
+  }
+  ::chmod(open_key.c_str(), 0644);
+  const auto short_key = (dir / "short.key").string();
+  {
+    std::ofstream out(short_key);
+    out << "00ff\n";
+  }
+  ::chmod(short_key.c_str(), 0600);
+  const auto port = std::to_string(icars::coros::free_udp_port());
+  struct Case {
+    std::string program, args, reason;
+  };
+  const std::vector<Case> cases = {
+      {kDeviceManager, "--house " + kHouse + " --fleet-port " + port, "--fleet-port needs --fleet-key FILE"},
+      {kDeviceManager, "--house " + kHouse + " --fleet-port " + port + " --fleet-key " + key + " --devices tv",
+       "this manager hosts no robot's Wheels"},
+      {kDeviceManager, "--house " + kHouse + " --fleet-port " + port + " --fleet-key " + open_key, open_key},
+      {kDeviceManager, "--house " + kHouse + " --fleet-port " + port + " --fleet-key " + short_key, short_key},
+      {kIcars, "run " + kPolicy + " --world " + kHouse + " --external", "needs the fleet its robots' device managers joined"},
+      {kIcars, "run " + kPolicy + " --world " + kHouse + " --fleet-port " + port, "--fleet-port needs --fleet-key FILE"},
+      {kIcars, "serve --fleet-port " + port + " --fleet-key " + open_key, open_key},
+  };
+  for (const auto& c : cases) {
+    const auto run = icars_test::run_program(c.program, c.args, 60);
+    EXPECT_EQ(run.exit_code, 2) << c.args << "\n" << run.output;
+    EXPECT_NE(run.output.find(c.reason), std::string::npos) << c.args << "\n" << run.output;
+    EXPECT_EQ(run.output.find("AddressSanitizer"), std::string::npos) << run.output;
+  }
+  // Options a parser refuses: not an address, no such key file.
+  for (const auto& args : {"--house " + kHouse + " --fleet-port " + port + " --fleet-address 10.0.0.300",
+                           "--house " + kHouse + " --fleet-port " + port + " --fleet-key " + (dir / "none.key").string()}) {
+    const auto run = icars_test::run_program(kDeviceManager, args, 60);
+    EXPECT_NE(run.exit_code, 0) << args;
+    EXPECT_NE(run.output.find("--fleet-"), std::string::npos) << run.output;
+  }
+}
+
 }  // namespace

@@ -127,8 +127,10 @@ int serve(const ServeOptions& options) {
   // --- Inputs ----------------------------------------------------------------------------------
   if (!valid_name(options.name)) return fail(2, fmt::format("--name '{}' is not a server name", options.name));
   std::vector<PeerAddress> peers;
+  std::optional<coros::AgentConfiguration> fleet;
   try {
     peers = read_peers(options);
+    if (options.fleet.enabled()) fleet = fleet_agent(options.fleet, options.name);
   } catch (const std::exception& e) {
     return fail(2, e.what());
   }
@@ -280,10 +282,10 @@ int serve(const ServeOptions& options) {
   } release_clock{*server, stamp};
   report::ServiceRecorder heard(server->container(), trace, true);
   std::unique_ptr<RobotMarketHost> robot_market;
-  if (options.fleet.enabled()) {
+  if (fleet) {
     home::RobotMarketOptions market_options;
     try {
-      market_options.agent = fleet_agent(options.fleet, options.name);
+      market_options.agent = *fleet;
       robot_market = std::make_unique<RobotMarketHost>(*server, std::move(market_options));
     } catch (const std::exception& e) {
       return fail(2, fmt::format("the robot market: {}", e.what()));

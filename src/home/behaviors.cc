@@ -921,22 +921,42 @@ class SetLights final : public Behavior {
 // --- LookAtSound ----------------------------------------------------------------------------------
 
 void LookAtSound::entry() {
-  wheels_ = require<NavigationService>(of_type("Navigation"));
-  auto query = of_type("SoundLocalizer");
-  if (!wheels_->attributes().carrier.empty()) query.carried_by(wheels_->attributes().carrier);
-  listen(require<SoundLocalizer>(query));
+  wheels_.clear();
+  std::vector<std::shared_ptr<SoundLocalizer>> arrays;
+  auto query = of_type("SoundLocalizer").available();
+  if (robot_ == "any") {
+    for (const auto& s : services().find(query)) {
+      if (auto l = std::dynamic_pointer_cast<SoundLocalizer>(s)) arrays.push_back(l);
+    }
+    if (arrays.empty()) throw BehaviorError("no available SoundLocalizer service");
+  } else {
+    if (!robot_.empty()) query.carried_by(robot_);
+    arrays.push_back(require<SoundLocalizer>(query));
+  }
+  for (const auto& array : arrays) {
+    const std::string robot = array->attributes().carrier;
+    auto wheels = discover<NavigationService>(robot.empty() ? of_type("Navigation") : of_type("Navigation").carried_by(robot));
+    if (!wheels) {
+      if (robot_ == "any") continue;  // an array on a robot that cannot turn
+      throw BehaviorError("no available Navigation service" + (robot.empty() ? std::string() : " on " + robot));
+    }
+    wheels_[robot] = wheels;
+    listen(array, [this, robot](const Event& e) { on_sound(robot, e); });
+  }
+  if (wheels_.empty()) throw BehaviorError("no robot with a microphone array can turn");
 }
 
-void LookAtSound::handle_event(const Event& e) {
+void LookAtSound::on_sound(const std::string& robot, const Event& e) {
   if (e.type() != "SoundDirection") return;
   if (e.get<double>("level_db") < min_level_db_ || e.get<double>("confidence") < min_confidence_) return;
   const double bearing = e.get<double>("bearing");
-  invoke(*wheels_, "position", [&](auto done) { wheels_->proxy().position_async(done); },
-         [this, bearing](std::exception_ptr error, home::Pose at = {}) {
+  auto wheels = wheels_.at(robot);
+  invoke(*wheels, "position", [&](auto done) { wheels->proxy().position_async(done); },
+         [this, bearing, wheels](std::exception_ptr error, home::Pose at = {}) {
            if (error) return note("could not read where the robot faces: " + describe(error));
            const double direction = std::remainder(at.theta + bearing, 2 * std::numbers::pi);
-           invoke(*wheels_, fmt::format("turn_to({:.3f})", direction),
-                  [&](auto done) { wheels_->proxy().turn_to_async(direction, done); });
+           invoke(*wheels, fmt::format("turn_to({:.3f})", direction),
+                  [&](auto done) { wheels->proxy().turn_to_async(direction, done); });
          });
 }
 
@@ -975,7 +995,10 @@ void register_behaviors(BehaviorRegistry& registry) {
                                   {param("track", T::string, "relaxing music", "what 'play music' plays"),
                                    param("volume_step", T::integer, "5", "volume change per command")});
   registry.add<LookAtSound>("LookAtSound", "turns the robot towards sounds, located by its microphone array",
-                            {param("min_level_db", T::number, "45", "ignore quieter sounds"),
+                            {param("robot", T::string, "",
+                                   "which robot (default: the first with a microphone array); \"any\": every robot "
+                                   "with one turns to what it hears").naming("robot"),
+                             param("min_level_db", T::number, "45", "ignore quieter sounds"),
                              param("min_confidence", T::number, "0.03", "ignore sounds located less surely (0..1; a voice in a room is 0.05-0.5, diffuse noise under 0.02)")});
   registry.add<MoodControl>("MoodControl", "lights off or dimmed, calm music for a while",
                             {param("rooms", T::list, "", "lights of these rooms (default: all)").naming("room"),

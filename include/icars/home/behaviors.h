@@ -13,6 +13,7 @@
 // register_behaviors() adds them all, with their declared parameters, to a registry.
 #pragma once
 
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -30,20 +31,24 @@ behavior::BehaviorRegistry behavior_registry();
 
 // Fig. 11b: binds the robot's wheels and the sound localizer of its microphone array at entry;
 // on every sound loud and clear enough turns the robot towards where the localizer estimated it
-// came from (the robot's heading now plus the sound's bearing from the array's front).
+// came from (the robot's heading now plus the sound's bearing from the array's front). The robot:
+// the one named, the first with a microphone array, or with robot="any" every robot with one,
+// each turning to what its own array hears.
 class LookAtSound : public behavior::Behavior {
  public:
   explicit LookAtSound(const behavior::Params& p)
-      : min_level_db_(p.number("min_level_db")), min_confidence_(p.number("min_confidence")) {}
+      : min_level_db_(p.number("min_level_db")), min_confidence_(p.number("min_confidence")), robot_(p.string("robot")) {}
 
  protected:
   void entry() override;
-  void handle_event(const behavior::Event& e) override;
+  void handle_event(const behavior::Event&) override {}
 
  private:
+  void on_sound(const std::string& robot, const behavior::Event& e);
   double min_level_db_;
   double min_confidence_;
-  std::shared_ptr<NavigationService> wheels_;
+  std::string robot_;
+  std::map<std::string, std::shared_ptr<NavigationService>> wheels_;  // by robot
 };
 
 }  // namespace icars::home
