@@ -34,8 +34,9 @@ void ErrandMarket::init(Agent& agent) {
   agent.neighbors().on_change([this](const AgentState& s, bool joined) {
     if (s.role != "robot") return;
     if (joined) return;
-    robot_failed(s.id, fmt::format("{} stopped announcing itself", s.id));
-    unavailable_.erase(s.id);  // it is out of the neighbour table: it cannot bid anyway
+    // Out of the neighbour table it cannot bid; whether it may win again when it is back is the
+    // user's to say (robot_failed / set_available), not its announcements'.
+    lose(s.id, fmt::format("{} stopped announcing itself", s.id));
   });
 }
 
@@ -238,6 +239,10 @@ void ErrandMarket::reassign(const std::string& errand, const std::string& why) {
 
 void ErrandMarket::robot_failed(const std::string& robot, const std::string& why) {
   unavailable_.insert(robot);
+  lose(robot, why);
+}
+
+void ErrandMarket::lose(const std::string& robot, const std::string& why) {
   std::vector<std::string> held;
   for (const auto& [id, e] : errands_) {
     if (e.robot == robot && e.held) held.push_back(id);

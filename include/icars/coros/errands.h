@@ -114,6 +114,8 @@ class ErrandMarket : public SimpleOperator {
     std::shared_ptr<GroupAction> announcer, awarder;
   };
   void next();  // starts the next queued auction when none is running
+  // Every errand `robot` holds is auctioned again without it; an auction waiting for it does not.
+  void lose(const std::string& robot, const std::string& why);
   void start_round(const std::string& id, Errand& e);
   void close_round(const std::string& id);
   void on_bid(const BidMessage& m, const Envelope& env);
