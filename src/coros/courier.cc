@@ -487,11 +487,7 @@ void CourierUserOperator::close_round(const std::string& task_id) {
     });
     return;
   }
-  // Lowest cost wins; equal costs go to the smaller robot id (the map is ordered by id).
-  auto best = r.bids.begin();
-  for (auto it = r.bids.begin(); it != r.bids.end(); ++it) {
-    if (it->second < best->second) best = it;
-  }
+  const auto best = winning_bid(r.bids);
   r.robot = best->first;
   r.cost = best->second;
   r.history.push_back(fmt::format("round {}: {} won at {:.2f} m of {} bids", r.round, r.robot,

@@ -162,11 +162,7 @@ void ErrandMarket::close_round(const std::string& id) {
     });
     return;
   }
-  // Lowest cost wins; equal costs go to the smaller robot id (the map is ordered by id).
-  auto best = e.bids.begin();
-  for (auto b = e.bids.begin(); b != e.bids.end(); ++b) {
-    if (b->second < best->second) best = b;
-  }
+  const auto best = winning_bid(e.bids);
   e.robot = best->first;
   e.cost = best->second;
   const ErrandAwardMessage award{id, e.round, e.robot, e.stop, e.cost};

@@ -17,6 +17,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <span>
 #include <stdexcept>
@@ -104,6 +105,16 @@ struct BidMessage {
   static constexpr MessageCode kCode = MessageCode::bid;
   bool operator==(const BidMessage&) const = default;
 };
+
+// The winner of a round's bids (by robot id): the lowest cost, equal costs going to the smaller
+// robot id. `bids` must not be empty.
+inline std::map<std::string, double>::const_iterator winning_bid(const std::map<std::string, double>& bids) {
+  auto best = bids.begin();
+  for (auto it = bids.begin(); it != bids.end(); ++it) {
+    if (it->second < best->second) best = it;
+  }
+  return best;
+}
 
 struct AwardMessage {
   std::string task_id;
