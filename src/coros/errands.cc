@@ -28,6 +28,7 @@ std::string_view to_string(ErrandNews::Kind kind) {
 
 void ErrandMarket::init(Agent& agent) {
   SimpleOperator::init(agent);
+  started_ = Clock::now();
   actions_ = std::make_unique<ActionHandler>(agent);
   agent.processor().on<BidMessage>([this](const BidMessage& m, const Envelope& e) { on_bid(m, e); });
   agent.processor().on<AwardAckMessage>([this](const AwardAckMessage& m, const Envelope& e) { on_award_ack(m, e); });
@@ -38,6 +39,18 @@ void ErrandMarket::init(Agent& agent) {
     // user's to say (robot_failed / set_available), not its announcements'.
     lose(s.id, fmt::format("{} stopped announcing itself", s.id));
   });
+}
+
+bool ErrandMarket::every_robot_bid(const Errand& e) const {
+  // Until every robot had the time to announce itself, the neighbour table does not say who
+  // will bid: the round waits for its window.
+  if (Clock::now() - started_ < agent().config().neighbor_expiry) return false;
+  const auto out = excluded(e);
+  for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
+    if (std::find(out.begin(), out.end(), n.id) != out.end()) continue;
+    if (!e.bids.contains(n.id)) return false;
+  }
+  return true;
 }
 
 void ErrandMarket::shutdown() {
@@ -127,11 +140,7 @@ void ErrandMarket::on_bid(const BidMessage& m, const Envelope& env) {
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
   e.bids[m.robot] = m.cost;
   e.bidders[m.robot] = env.from;
-  for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
-    if (std::find(out.begin(), out.end(), n.id) != out.end()) continue;
-    if (!e.bids.contains(n.id)) return;
-  }
-  close_round(m.task_id);
+  if (every_robot_bid(e)) close_round(m.task_id);
 }
 
 void ErrandMarket::close_round(const std::string& id) {
@@ -256,14 +265,7 @@ void ErrandMarket::lose(const std::string& robot, const std::string& why) {
         if (errands_.contains(id)) start_round(id, errands_.at(id));
       } else if (e.robot.empty()) {
         e.bids.erase(robot);
-        if (!e.bids.empty()) {
-          bool complete = true;
-          const auto out = excluded(e);
-          for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
-            if (std::find(out.begin(), out.end(), n.id) == out.end() && !e.bids.contains(n.id)) complete = false;
-          }
-          if (complete) close_round(active_);
-        }
+        if (!e.bids.empty() && every_robot_bid(e)) close_round(active_);
       }
     }
   }

@@ -178,6 +178,22 @@ TEST_F(ErrandMarketTest, TheNearestRobotWinsAndTheNewsHasEveryBid) {
   EXPECT_EQ(taken[0]["agent"], "robot2");
 }
 
+// A market that has just started has heard no robot yet: its first auction does not close on
+// the first bid (every robot it knows of, none, has bid) but waits for the window.
+TEST_F(ErrandMarketTest, AMarketThatJustStartedWaitsForTheRobotsItHasNotHeardYet) {
+  const std::map<std::string, sim::Point> at = {{"robot1", {1.0, 1.0}}, {"robot2", {5.0, 2.4}}};
+  for (const auto& [id, p] : at) add_bidder(id, standing_at(p));
+  add_market();
+  market_agent_->start();
+  offer("e1", "kitchen_corner");  // before any robot announced itself
+  for (const auto& [id, b] : bidders_) b.agent->start();
+  ASSERT_TRUE(wait_for("e1", ErrandNews::Kind::awarded)) << history("e1");
+  const auto n = news("e1");
+  ASSERT_EQ(n.size(), 1u) << history("e1");
+  EXPECT_EQ(n[0].bids.size(), 2u) << describe(n[0]);
+  EXPECT_EQ(n[0].robot, "robot2") << describe(n[0]);  // the nearer one, not the first to answer
+}
+
 TEST_F(ErrandMarketTest, APatrolIsSplitByAppendCostsAndEachRouteHoldsItsAwardsInOrder) {
   std::vector<std::string> patrol;
   for (const auto* w : map_->house().waypoints_tagged("patrol")) patrol.push_back(w->name);

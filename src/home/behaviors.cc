@@ -236,8 +236,12 @@ class ErrandDriving : public Behavior {
         drive(u.errand, u.robot);
         return;
       case ErrandUpdate::Kind::reauctioned:
+        // A robot lost before it acknowledged its award never held the stop.
         trace_auction(stop, u, "reauction",
-                      fmt::format("{}: {} lost {} ({}); auctioned again", path(), u.robot, stop.label, u.reason));
+                      stop.robot == u.robot
+                          ? fmt::format("{}: {} lost {} ({}); auctioned again", path(), u.robot, stop.label, u.reason)
+                          : fmt::format("{}: {} won {} but was lost before it took it ({}); auctioned again", path(),
+                                        u.robot, stop.label, u.reason));
         abandon(u.errand, u.robot);
         return;
       case ErrandUpdate::Kind::unassigned: {

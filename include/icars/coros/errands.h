@@ -20,7 +20,8 @@
 //      and the work ends soonest. A robot that cannot reach the stop, or cannot work now, does
 //      not bid.
 //   3. The round closes when every robot the market knows of (its neighbour table, minus the
-//      excluded and unavailable ones) has bid, or when the window ends. Lowest cost wins, equal
+//      excluded and unavailable ones) has bid — once the market has run for neighbor_expiry, so
+//      that every robot had the time to announce itself — or when the window ends. Lowest cost wins, equal
 //      costs go to the smaller id. No bid: the same errand is auctioned again after a window,
 //      up to max_rounds, then it is reported unassigned.
 //   4. ERRAND_AWARD is resent until AWARD_ACK; the robot appends the stop to its route. Only then
@@ -122,6 +123,7 @@ class ErrandMarket : public SimpleOperator {
   void on_award_ack(const AwardAckMessage& m, const Envelope& env);
   void tell(const Errand& e, ErrandNews news) const;
   std::vector<std::string> excluded(const Errand& e) const;
+  bool every_robot_bid(const Errand& e) const;  // the round may close before its window ends
   void stop_messages(Errand& e);
   void revoke(const std::string& id, const Errand& e);
 
@@ -132,6 +134,7 @@ class ErrandMarket : public SimpleOperator {
   std::string active_;             // being auctioned or awarded, "" when none
   std::set<std::string> unavailable_;
   std::vector<std::shared_ptr<GroupAction>> revokers_;
+  Clock::time_point started_{};
 };
 
 // A robot's side: bids for errands and keeps the route it is committed to.
