@@ -189,6 +189,9 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--listen", run.listen, "where device managers connect, host:port")->capture_default_str();
   run_cmd->add_flag("--external", run.external, "device managers run as separate processes");
   run_cmd->add_flag("--quiet", run.quiet, "print only the summary");
+  run_cmd->add_option("--wait-for", run.wait_for,
+                      "with --external: start the policy once these devices (ids) are registered (at most 60 s)")
+      ->delimiter(',');
   run_cmd->add_flag("--market", run.market,
                     "run the robot market (robot=\"any\"; on by itself for a house with two robots or more)");
   add_fleet_options(*run_cmd, run.fleet, "the robot market");

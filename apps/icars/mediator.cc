@@ -144,6 +144,9 @@ int run(const RunOptions& options) {
   // Lock-step: the embedded house's clock moves only when the mediator and the devices have
   // done what its last event started, so the run is the same at any speed.
   const bool lock_step = !options.external && !options.free_running;
+  if (!options.wait_for.empty() && !options.external) {
+    return fail(2, "--wait-for is for --external runs (the embedded house registers before the policy starts)");
+  }
   if (options.speed <= 0 && !lock_step) {
     return fail(2, "--speed max needs the lock-step clock of the embedded house (not --external or --free-running)");
   }
@@ -409,6 +412,24 @@ int run(const RunOptions& options) {
       } else if (signal > 0) {
         return 0;
       }
+    }
+  }
+  if (!options.wait_for.empty()) {
+    const auto has_devices = [&] {
+      for (const auto& id : options.wait_for) {
+        if (server->container().find(service::ServiceQuery{}.on_device(id).available()).empty()) return false;
+      }
+      return true;
+    };
+    const auto give_up = std::chrono::steady_clock::now() + 60s;
+    while (!has_devices() && std::chrono::steady_clock::now() < give_up) {
+      const timespec wait{0, 50'000'000};
+      if (sigtimedwait(&signals, nullptr, &wait) > 0) return 0;
+    }
+    if (!has_devices()) {
+      trace.record(note(clock->now(), fmt::format("not every device of --wait-for is here after 60 s ({}); the policy "
+                                                  "starts without them",
+                                                  fmt::join(options.wait_for, ", "))));
     }
   }
   std::unique_ptr<RobotMarketHost> robot_market;

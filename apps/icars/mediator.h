@@ -43,6 +43,10 @@ struct RunOptions {
   // port, a fresh key) unless `fleet` names one, which --external needs.
   bool market = false;
   FleetSettings fleet;
+  // --external: start the policy once these devices are services (at most 60 s), not as soon as
+  // the house's clock is known: the devices its first behaviors need, registered by managers
+  // that may come up later.
+  std::vector<std::string> wait_for;
 };
 
 // Runs until the stop time or SIGINT/SIGTERM; returns the process exit code (0 ok, 1 the run

@@ -161,7 +161,7 @@ std::string night_losing_robot2(Loss loss) {
   icars_test::Program mediator(
       dir / "icars.stderr", env,
       with_fleet({kIcars, "run", kPolicy, "--world", kHouse, "--external", "--listen", "127.0.0.1:0", "--until",
-                  "07:30", "--trace", trace, "--quiet"}));
+                  "07:30", "--wait-for", "robot1_wheels,robot2_wheels,robot2_camera", "--trace", trace, "--quiet"}));
   std::vector<std::string> output;
   const auto server_port = icars_test::start_mediator(mediator, output);
   if (server_port.empty()) {
@@ -311,6 +311,7 @@ TEST(MultiRobot, BadFleetOptionsStopWithTheReason) {
       {kDeviceManager, "--house " + kHouse + " --fleet-port " + port + " --fleet-key " + short_key, short_key},
       {kIcars, "run " + kPolicy + " --world " + kHouse + " --external", "needs the fleet its robots' device managers joined"},
       {kIcars, "run " + kPolicy + " --world " + kHouse + " --fleet-port " + port, "--fleet-port needs --fleet-key FILE"},
+      {kIcars, "run " + kPolicy + " --world " + kHouse + " --wait-for robot2_wheels", "--wait-for is for --external runs"},
       {kIcars, "serve --fleet-port " + port + " --fleet-key " + open_key, open_key},
   };
   for (const auto& c : cases) {
