@@ -64,7 +64,7 @@ using nlohmann::json;
 
 class ConfigReader {
  public:
-  ConfigReader(const json& root, std::string source) : root_(root), source_(std::move(source)) {}
+  explicit ConfigReader(std::string source) : source_(std::move(source)) {}
 
   [[noreturn]] void fail(const std::string& what) const {
     throw CorosError(fmt::format("{}: {}", source_, what));
@@ -106,7 +106,6 @@ class ConfigReader {
   }
 
  private:
-  const json& root_;
   std::string source_;
 };
 
@@ -121,7 +120,7 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   } catch (const json::parse_error& e) {
     throw CorosError(fmt::format("{}: not valid JSON: {}", source_name, e.what()));
   }
-  ConfigReader in(root, source_name);
+  ConfigReader in(source_name);
   in.only(root, "the configuration",
           {"id", "role", "ip", "port", "broadcast", "hello_period_ms", "neighbor_expiry_ms",
            "bid_window_ms", "retry_period_ms", "max_retries", "map", "robot", "track_file", "user",

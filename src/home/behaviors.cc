@@ -181,9 +181,10 @@ class ErrandDriving : public Behavior {
   std::size_t open_stops() const { return stops_.size(); }
   void exit() override {
     for (const auto& [errand, stop] : stops_) market_->withdraw(errand);
-    for (auto& [robot, w] : robots_) {
-      if (!w.errand.empty() && w.nav->available() && w.nav->proxy().bound()) {
-        invoke(*w.nav, "stop", [&](auto done) { w.nav->proxy().stop_async(done); }, [](std::exception_ptr) {});
+    for (const auto& entry : robots_) {
+      const auto nav = entry.second.nav;
+      if (!entry.second.errand.empty() && nav->available() && nav->proxy().bound()) {
+        invoke(*nav, "stop", [&](auto done) { nav->proxy().stop_async(done); }, [](std::exception_ptr) {});
       }
     }
     stops_.clear();
