@@ -596,6 +596,38 @@ TEST_F(SimStateFileTest, ADrivingRobotDrivesOnWithTheClockAndArrivesWhereItWould
   }
 }
 
+// A robot that waits for a door on the way (another robot holds it) keeps its wait in the file:
+// restarted mid-wait it waits the rest, then drives on; a negative wait is refused.
+TEST_F(SimStateFileTest, ARobotWaitingOnItsWayWaitsTheRestAfterARestart) {
+  std::string at_command;
+  {
+    KeptHouse house(file_, t18_);
+    house.capability<home::WheelsPrx>("robot1_wheels", "wheels").go_to_waypoint("bedroom_window");
+    at_command = read(file_);
+  }
+  auto doc = nlohmann::json::parse(at_command);
+  doc["robots"]["robot1"]["pause_ms"] = 5000;
+  doc["robots"]["robot1"]["pause_at"] = 1.0;  // 2 s along, at 0.5 m/s
+  write(file_, doc.dump());
+  {
+    KeptHouse again(file_, t18_ + 3s);  // on the same simulated time: 1 s into the wait
+    const auto waiting = again.world().robot_pose("robot1");
+    again.clock().advance_by(3s);  // still waiting
+    EXPECT_EQ(again.world().robot_pose("robot1"), waiting);
+    EXPECT_TRUE(again.world().robot_moving("robot1"));
+    again.clock().advance_by(2s);  // the wait is over at 7 s: on its way again
+    EXPECT_NE(again.world().robot_pose("robot1"), waiting);
+    const auto states = again.world().robot_states();
+    EXPECT_EQ(states.front().pause, Time(5000));
+    EXPECT_DOUBLE_EQ(states.front().pause_at, 1.0);
+  }
+  doc["robots"]["robot1"]["pause_ms"] = -1;
+  write(file_, doc.dump());
+  KeptHouse refused(file_, t18_);
+  EXPECT_EQ(refused.state().loaded(), SimStateFile::Loaded::rejected);
+  EXPECT_NE(refused.state().rejection().find("negative pause"), std::string::npos) << refused.state().rejection();
+}
+
 TEST_F(SimStateFileTest, ACorruptFileIsSetAsideWithAWarningAndTheHouseStartsFresh) {
   {
     KeptHouse house(file_, t18_);
