@@ -186,13 +186,15 @@ void ErrandMarket::close_round(const std::string& id) {
       agent().config().retry_period, agent().config().max_retries, [this, id, round, winner] {
         auto it = errands_.find(id);
         if (it == errands_.end() || it->second.round != round || it->second.held) return;
-        Errand& lost = it->second;
-        lost.excluded.insert(winner);
-        tell(lost, ErrandNews{ErrandNews::Kind::reauctioned, id, round, winner, lost.cost, lost.bids, excluded(lost),
-                              winner + " did not acknowledge the award", 0});
-        if (errands_.contains(id)) start_round(id, errands_.at(id));
+        auction_again(id, it->second, winner, winner + " did not acknowledge the award");
       });
   actions_->handle(e.awarder);
+}
+
+void ErrandMarket::auction_again(std::string id, Errand& e, const std::string& robot, const std::string& why) {
+  e.excluded.insert(robot);
+  tell(e, ErrandNews{ErrandNews::Kind::reauctioned, id, e.round, robot, e.cost, e.bids, excluded(e), why, 0});
+  if (auto it = errands_.find(id); it != errands_.end()) start_round(id, it->second);  // the listener may release it
 }
 
 void ErrandMarket::on_award_ack(const AwardAckMessage& m, const Envelope& env) {
@@ -202,11 +204,7 @@ void ErrandMarket::on_award_ack(const AwardAckMessage& m, const Envelope& env) {
   if (m.round != e.round || e.robot != m.robot || e.held) return;
   if (e.awarder) e.awarder->complete();
   if (!m.accepted) {
-    e.excluded.insert(m.robot);
-    const std::string id = m.task_id;
-    tell(e, ErrandNews{ErrandNews::Kind::reauctioned, id, e.round, m.robot, e.cost, e.bids, excluded(e),
-                       m.robot + " refused the award: " + m.reason, 0});
-    if (errands_.contains(id)) start_round(id, errands_.at(id));
+    auction_again(m.task_id, e, m.robot, m.robot + " refused the award: " + m.reason);
     return;
   }
   e.held = true;
@@ -259,10 +257,7 @@ void ErrandMarket::lose(const std::string& robot, const std::string& why) {
     if (it != errands_.end()) {
       Errand& e = it->second;
       if (e.robot == robot && !e.held) {
-        const std::string id = active_;
-        e.excluded.insert(robot);
-        tell(e, ErrandNews{ErrandNews::Kind::reauctioned, id, e.round, robot, e.cost, e.bids, excluded(e), why, 0});
-        if (errands_.contains(id)) start_round(id, errands_.at(id));
+        auction_again(active_, e, robot, why);
       } else if (e.robot.empty()) {
         e.bids.erase(robot);
         if (!e.bids.empty() && every_robot_bid(e)) close_round(active_);

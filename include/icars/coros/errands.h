@@ -124,6 +124,8 @@ class ErrandMarket : public SimpleOperator {
   void tell(const Errand& e, ErrandNews news) const;
   std::vector<std::string> excluded(const Errand& e) const;
   bool every_robot_bid(const Errand& e) const;  // the round may close before its window ends
+  // An award `robot` did not take: auction the errand again without it (the news first).
+  void auction_again(std::string id, Errand& e, const std::string& robot, const std::string& why);
   void stop_messages(Errand& e);
   void revoke(const std::string& id, const Errand& e);
 
