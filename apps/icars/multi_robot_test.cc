@@ -18,6 +18,7 @@
 #include <fstream>
 #include <map>
 #include <random>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -126,6 +127,47 @@ TEST(MultiRobot, InOneProcessTheRobotsBidAndTheNightPatrolIsSplitBetweenThem) {
   // The night ended in the morning: the user got up and the coordinator observes again.
   ASSERT_FALSE(night.transitions.empty());
   EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
+}
+
+// A behavior with robot="any" started again (here a repeat's second run) listens to its robots
+// again: every round's stops are reached, none stalls.
+TEST(MultiRobot, ARepeatedPatrolListensToItsRobotsAgain) {
+  const auto dir = icars_test::run_directory("", "icars_multi_robot_repeat");
+  const auto trace = (dir / "trace.jsonl").string();
+  const auto policy = (dir / "twice.xml").string();
+  std::ofstream(policy) << R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="twice">
+  <task name="Rounds">
+    <repeat name="Twice" times="2">
+      <behavior type="PatrolHome" robot="any" waypoints="kitchen_corner, bedroom_window, entrance, bedroom_center"/>
+    </repeat>
+  </task>
+  <task name="Rest"><behavior type="Wait" duration="12h"/></task>
+  <statechart initial="Patrolling">
+    <state name="Patrolling" task="Rounds"><transition event="done" target="Resting"/></state>
+    <state name="Resting" task="Rest"/>
+  </statechart>
+</policy>
+)xml";
+  const auto run = icars_test::run_program(
+      kIcars, "run " + policy + " --world " + kHouse + " --quiet --until 20:00 --trace " + trace, 600);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto records = trace_of(trace);
+  std::map<std::string, int> reached;
+  std::set<std::string> robots;
+  for (const auto& j : records) {
+    if (str(j, "kind") == "event" && str(j, "event") == "WaypointReached" && str(j, "source") == "Rounds") {
+      ++reached[j.value(json::json_pointer("/properties/waypoint"), std::string())];
+      robots.insert(j.value(json::json_pointer("/properties/robot"), std::string()));
+    }
+    EXPECT_FALSE(str(j, "kind") == "auction" && str(j, "outcome") != "awarded") << j.dump();
+  }
+  for (const auto* w : {"kitchen_corner", "bedroom_window", "entrance", "bedroom_center"}) EXPECT_EQ(reached[w], 2) << w;
+  EXPECT_EQ(robots, (std::set<std::string>{"robot1", "robot2"}));
+  EXPECT_TRUE(std::any_of(records.begin(), records.end(), [](const json& j) {
+    return str(j, "kind") == "transition" && str(j, "to") == "Resting";
+  })) << run.output;
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
 }
 
 enum class Loss { killed, frozen };

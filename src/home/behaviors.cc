@@ -188,6 +188,9 @@ class ErrandDriving : public Behavior {
       }
     }
     stops_.clear();
+    // The robots' position listeners end with this activation: a new one (a retry, the next
+    // round of a repeat) finds and listens to the robots again.
+    robots_.clear();
   }
   std::shared_ptr<RobotMarket> market_;
 
@@ -444,12 +447,14 @@ class GoToUser final : public Driving {
     }
     locator_ = require<UserLocator>(robot_.empty() || any(robot_) ? of_type("UserLocator")
                                                                    : of_type("UserLocator").carried_by(robot_));
-    if (search_.empty()) {
+    places_ = search_;
+    searcher_.clear();
+    if (places_.empty()) {  // every room of the house as it is now
       std::set<std::string> rooms;
       for (const auto& service : services().all()) {
         if (!service->attributes().room.empty()) rooms.insert(service->attributes().room);
       }
-      search_.assign(rooms.begin(), rooms.end());
+      places_.assign(rooms.begin(), rooms.end());
     }
     next_ = 0;
     after(timeout_, [this] { fail(fmt::format("did not reach {} within {}", who(), format_duration(timeout_))); });
@@ -509,11 +514,11 @@ class GoToUser final : public Driving {
     }));
   }
   void search_next() {
-    if (next_ >= search_.size()) {
-      fail(fmt::format("{} not found in {}", who(), fmt::join(search_, ", ")));
+    if (next_ >= places_.size()) {
+      fail(fmt::format("{} not found in {}", who(), fmt::join(places_, ", ")));
       return;
     }
-    const auto place = search_[next_++];
+    const auto place = places_[next_++];
     if (market_) {
       send_robot(place, coros::Place{place, 0, 0}, [this, place](bool reached, const std::string& robot, const std::string& why) {
         if (!reached) note(fmt::format("cannot search {}: {}", place, why));
@@ -555,7 +560,8 @@ class GoToUser final : public Driving {
   }
 
   std::string user_;
-  std::vector<std::string> search_;
+  std::vector<std::string> search_;  // as given
+  std::vector<std::string> places_;  // this activation's: search_, or every room
   std::string robot_;
   Time timeout_;
   std::shared_ptr<UserLocator> locator_;
@@ -893,6 +899,7 @@ class SetLights final : public Behavior {
   void entry() override {
     auto lights = services().find(of_type("LightControl").available());
     pending_ = 0;
+    failed_ = false;  // a retry starts this behavior again: the last attempt's failure is not this one's
     for (const auto& service : lights) {
       auto light = std::static_pointer_cast<LightService>(service);
       if (!rooms_.empty() && std::find(rooms_.begin(), rooms_.end(), light->attributes().room) == rooms_.end()) continue;

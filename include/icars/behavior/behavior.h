@@ -114,6 +114,9 @@ class Behavior : public Owner {
   std::uint64_t events_handled() const { return events_handled_; }
 
  protected:
+  // A behavior is started again after it completed (a retry's next attempt, a repeat's next
+  // run, a state entered again): entry() sets up everything one activation uses, and nothing
+  // of the last activation (a failure seen, a listener, a cached service) carries over.
   virtual void entry() {}
   virtual void handle_event(const Event&) {}
   virtual void exit() {}

@@ -66,6 +66,24 @@ constexpr const char* kWarmPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
 </policy>
 )xml";
 
+// A lamp that does not answer at first: the retry's next attempt switches it.
+constexpr const char* kRetryPolicy = R"xml(<?xml version="1.0" encoding="UTF-8"?>
+<policy name="retry_light">
+  <task name="Light">
+    <retry name="On" times="6" delay="500ms"><behavior type="SetLights" on="true" rooms="living_room"/></retry>
+  </task>
+  <task name="Rest">
+    <behavior type="Wait" duration="1h"/>
+  </task>
+  <statechart initial="Lighting">
+    <transition event="failed" target="InTrouble"/>
+    <state name="Lighting" task="Light"><transition event="done" target="Resting"/></state>
+    <state name="Resting" task="Rest"/>
+    <state name="InTrouble" task="Rest"/>
+  </statechart>
+</policy>
+)xml";
+
 // The fleet on a broker of its own and the bridge registering its devices with a server.
 struct MqttHome {
   MqttHome(std::uint16_t server_port, MqttDevicesOptions options)
@@ -101,7 +119,7 @@ class MqttPolicy : public ::testing::Test {
     return std::find(all.begin(), all.end(), transition) != all.end();
   }
 
-  home_test::PolicyServer policy_{{{"hall_light", kPolicy}, {"too_warm", kWarmPolicy}}};
+  home_test::PolicyServer policy_{{{"hall_light", kPolicy}, {"too_warm", kWarmPolicy}, {"retry_light", kRetryPolicy}}};
   std::mutex mutex_;
   std::vector<std::string> transitions_;
 };
@@ -178,6 +196,39 @@ TEST_F(MqttPolicy, ATemperatureFromAnMqttSensorReachesThePolicysRules) {
     return took("Watching -> Cooling on TooWarm");
   }, 60s)) << ::testing::PrintToString(transitions());
   EXPECT_GT(temperature, 25.0) << "moved before the temperature was above 25";
+  policy_->stop();
+}
+
+// A retry starts the same SetLights again: an attempt whose lamp did not confirm fails, and the
+// next attempt, with the lamp answering again, succeeds (the failure is not carried over).
+TEST_F(MqttPolicy, ALampThatDidNotAnswerTheFirstAttemptIsSwitchedByTheRetry) {
+  MqttDevicesOptions options;
+  options.placements[mqtt_test::Fleet::unique_id("living_lamp")] = Placement{"living_light", "living_room", ""};
+  options.command_timeout = 500ms;
+  MqttHome home(policy_.port(), options);
+  auto& c = policy_->container();
+  ASSERT_TRUE(planet_test::wait_until([&] {
+    return c.find(service::ServiceQuery::of_type("LightControl").in_room("living_room").available()).size() == 1;
+  }, 30s));
+  std::vector<std::string> notes;
+  policy_->trace().add_sink([this, &notes](const behavior::TraceRecord& r) {
+    std::lock_guard lock(mutex_);
+    if (r.kind == "transition") transitions_.push_back(r.text);
+    if (r.kind == "note") notes.push_back(r.text);
+  });
+  const auto noted = [&](const std::string& text) {
+    std::lock_guard lock(mutex_);
+    return std::any_of(notes.begin(), notes.end(), [&](const std::string& n) { return n.find(text) != std::string::npos; });
+  };
+  home.fleet.ignore_commands(true);
+  policy_->run_policy("retry_light");
+  ASSERT_TRUE(planet_test::wait_until([&] { return noted("attempt 2 of 6"); }, 60s));
+  home.fleet.ignore_commands(false);
+  ASSERT_TRUE(planet_test::wait_until([&] { return policy_.state() != "Lighting"; }, 60s))
+      << ::testing::PrintToString(transitions());
+  EXPECT_EQ(policy_.state(), "Resting") << ::testing::PrintToString(transitions());
+  EXPECT_EQ(home.fleet.on("living_lamp"), true);
+  EXPECT_FALSE(noted("attempt 4 of 6")) << "an attempt with the lamp answering failed";
   policy_->stop();
 }
 
