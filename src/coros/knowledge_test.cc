@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <thread>
+
 #include "icars/coros/robot.h"
 
 namespace icars::coros {
@@ -282,6 +284,34 @@ TEST(CorosMapPlanner, CostsArePlannedPathsNotStraightLines) {
   EXPECT_THROW(map->locate("office_999"), CorosError);
   EXPECT_THROW(map->locate("-5,-5"), CorosError);  // outside: not free space
   EXPECT_THROW(MapPlanner::load("/nonexistent.xml", 0.25), CorosError);
+}
+
+// A place's distance field is computed once and shared by the threads asking (robots of one
+// process bid on their planner threads at once); a cost is the same whoever asks, as the
+// path's length; a place that is no free space, or out of reach, costs nothing.
+TEST(CorosMapPlanner, PlacesAreAskedAboutFromManyThreadsWithOneFieldEach) {
+  const auto map = MapPlanner::load(std::string(ICARS_HOUSES_DIR) + "/paper_house.xml", 0.25);
+  const std::vector<std::string> places = {"entrance", "bedroom_window", "kitchen_corner", "sofa_side"};
+  std::vector<std::vector<double>> costs(4);
+  std::vector<std::thread> threads;
+  for (std::size_t t = 0; t < costs.size(); ++t) {
+    threads.emplace_back([&, t] {
+      for (const auto& from : places) {
+        for (const auto& to : places) costs[t].push_back(map->path_cost(map->locate(from), map->locate(to)).value_or(-1));
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  for (std::size_t t = 1; t < costs.size(); ++t) EXPECT_EQ(costs[t], costs[0]);
+  EXPECT_EQ(map->fields(), places.size());
+  for (const double c : costs[0]) EXPECT_GE(c, 0);
+  const auto a = map->locate("entrance"), b = map->locate("bedroom_window");
+  const auto path = map->path(a, b);
+  ASSERT_TRUE(path);
+  EXPECT_NEAR(sim::path_length(*path), *map->path_cost(a, b), 0.05 * *map->path_cost(a, b));
+  EXPECT_FALSE(map->path_cost(a, {-5, -5}));   // not free space
+  EXPECT_FALSE(map->path_cost({-5, -5}, b));   // nowhere near the map
+  EXPECT_EQ(map->fields(), places.size());
 }
 
 }  // namespace

@@ -63,14 +63,42 @@ sim::Point MapPlanner::locate(const std::string& name) const {
                   name, house_.name));
 }
 
+std::shared_ptr<const sim::DistanceField> MapPlanner::field(sim::Point to) const {
+  std::lock_guard lock(mutex_);
+  for (auto it = fields_.begin(); it != fields_.end(); ++it) {
+    if ((*it)->goal() == to) {
+      fields_.splice(fields_.begin(), fields_, it);
+      return fields_.front();
+    }
+  }
+  // Computed under the lock: robots asking for the same place at once wait for one field
+  // rather than each computing its own.
+  auto made = std::make_shared<const sim::DistanceField>(grid_, to);
+  fields_.push_front(made);
+  std::size_t bytes = 0;
+  for (auto it = fields_.begin(); it != fields_.end(); ++it) {
+    bytes += (*it)->memory();
+    if (bytes > kFieldBytes && it != fields_.begin()) {
+      fields_.erase(it, fields_.end());
+      break;
+    }
+  }
+  return made;
+}
+
+std::size_t MapPlanner::fields() const {
+  std::lock_guard lock(mutex_);
+  return fields_.size();
+}
+
 std::optional<std::vector<sim::Point>> MapPlanner::path(sim::Point from, sim::Point to) const {
-  return sim::plan_path(grid_, from, to);
+  if (!grid_.free(to)) return std::nullopt;
+  return field(to)->path_from(from);
 }
 
 std::optional<double> MapPlanner::path_cost(sim::Point from, sim::Point to) const {
-  auto p = path(from, to);
-  if (!p) return std::nullopt;
-  return sim::path_length(*p);
+  if (!grid_.free(to)) return std::nullopt;
+  return field(to)->length_from(from);
 }
 
 // --- SimRobot ------------------------------------------------------------------------------

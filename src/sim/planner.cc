@@ -1,11 +1,15 @@
 #include "icars/sim/planner.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <deque>
 #include <limits>
 #include <numbers>
+#include <numeric>
 #include <queue>
+#include <stdexcept>
 
 namespace icars::sim {
 
@@ -200,11 +204,12 @@ std::optional<Point> OccupancyGrid::nearest_free(Point p, double max_distance,
   return best;
 }
 
-std::optional<std::vector<Point>> plan_path(const OccupancyGrid& grid, Point from, Point to) {
-  const auto goal = grid.cell_of(to);
-  if (!goal || !grid.free(*goal)) return std::nullopt;
+namespace {
 
-  std::vector<Point> points{from};
+// The cell a path from `from` starts on, with `points` holding its first points (`from`, and
+// the point it steps out to when it stands off the free space); nullopt when there is none.
+std::optional<Cell> path_start(const OccupancyGrid& grid, Point from, std::vector<Point>& points) {
+  points.push_back(from);
   auto start = grid.cell_of(from);
   if (!start || !grid.free(*start)) {  // a body that stopped against an obstacle steps out
     const auto out = grid.nearest_free(from, grid.inflate_radius() + grid.resolution());
@@ -212,7 +217,32 @@ std::optional<std::vector<Point>> plan_path(const OccupancyGrid& grid, Point fro
     start = grid.cell_of(*out);
     points.push_back(*out);
   }
-  if (grid.component(*start) != grid.component(*goal)) return std::nullopt;
+  return start;
+}
+
+// Line-of-sight shortcuts: from each kept point, go as far along as is visible.
+std::vector<Point> shortcut(const OccupancyGrid& grid, const std::vector<Point>& points, Point to) {
+  std::vector<Point> path{points.front()};
+  std::size_t i = 0;
+  while (i + 1 < points.size()) {
+    std::size_t j = i + 1;
+    while (j + 1 < points.size() && grid.segment_free(points[i], points[j + 1])) ++j;
+    if (distance(points[j], path.back()) > 1e-9) path.push_back(points[j]);
+    i = j;
+  }
+  if (path.size() == 1) path.push_back(to);  // from == to
+  return path;
+}
+
+}  // namespace
+
+std::optional<std::vector<Point>> plan_path(const OccupancyGrid& grid, Point from, Point to) {
+  const auto goal = grid.cell_of(to);
+  if (!goal || !grid.free(*goal)) return std::nullopt;
+
+  std::vector<Point> points;
+  const auto start = path_start(grid, from, points);
+  if (!start || grid.component(*start) != grid.component(*goal)) return std::nullopt;
 
   if (*start != *goal) {
     const auto w = static_cast<std::size_t>(grid.width_);
@@ -260,18 +290,165 @@ std::optional<std::vector<Point>> plan_path(const OccupancyGrid& grid, Point fro
     points.insert(points.end(), cells.rbegin(), cells.rend());
   }
   points.push_back(to);
+  return shortcut(grid, points, to);
+}
 
-  // Line-of-sight shortcuts: from each kept point, go as far along as is visible.
-  std::vector<Point> path{points.front()};
-  std::size_t i = 0;
-  while (i + 1 < points.size()) {
-    std::size_t j = i + 1;
-    while (j + 1 < points.size() && grid.segment_free(points[i], points[j + 1])) ++j;
-    if (distance(points[j], path.back()) > 1e-9) path.push_back(points[j]);
-    i = j;
+namespace {
+
+// The field's moves: every (dx, dy) with |dx|, |dy| <= 3 and no common factor (32 directions),
+// so that its distances are within 1% of the straight-line length in open space (8
+// directions: up to 8%). A move is allowed when every cell its segment between the centres
+// touches is free (for a diagonal step: both side cells, as plan_path).
+struct Move {
+  int dx, dy;
+  double length;            // in cells
+  std::vector<Cell> cells;  // offsets of the cells the segment touches, the end cell included
+};
+
+std::vector<Move> make_moves() {
+  std::vector<Move> moves;
+  for (int dx = -3; dx <= 3; ++dx) {
+    for (int dy = -3; dy <= 3; ++dy) {
+      if ((dx == 0 && dy == 0) || std::gcd(dx, dy) != 1) continue;
+      Move m{dx, dy, std::hypot(dx, dy), {}};
+      // Cells are unit squares around integer centres: sample the segment finely and take
+      // every cell a sample is within a hair of (a segment through a corner touches all four).
+      constexpr int kSamples = 256;
+      constexpr double kHair = 1e-9;
+      for (int i = 0; i <= kSamples; ++i) {
+        const double x = dx * static_cast<double>(i) / kSamples;
+        const double y = dy * static_cast<double>(i) / kSamples;
+        for (const double ex : {-kHair, kHair}) {
+          for (const double ey : {-kHair, kHair}) {
+            const Cell c{static_cast<int>(std::floor(x + 0.5 + ex)), static_cast<int>(std::floor(y + 0.5 + ey))};
+            if ((c.x != 0 || c.y != 0) && std::find(m.cells.begin(), m.cells.end(), c) == m.cells.end()) {
+              m.cells.push_back(c);
+            }
+          }
+        }
+      }
+      moves.push_back(std::move(m));
+    }
   }
-  if (path.size() == 1) path.push_back(to);  // from == to
-  return path;
+  return moves;
+}
+
+const std::vector<Move>& moves() {
+  static const std::vector<Move> all = make_moves();
+  return all;
+}
+
+bool move_free(const OccupancyGrid& grid, Cell c, const Move& m) {
+  for (const Cell& o : m.cells) {
+    if (!grid.free(Cell{c.x + o.x, c.y + o.y})) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+DistanceField::DistanceField(const OccupancyGrid& grid, Point goal) : grid_(grid), goal_(goal) {
+  const auto cell = grid.cell_of(goal);
+  if (!cell || !grid.free(*cell)) {
+    throw std::invalid_argument(fmt::format("({:.2f}, {:.2f}) is not free space: no distances to it", goal.x, goal.y));
+  }
+  goal_cell_ = *cell;
+  const auto w = static_cast<std::size_t>(grid.width_);
+  const auto n = grid.free_.size();
+  std::vector<double> d(n, std::numeric_limits<double>::infinity());
+  using Entry = std::pair<double, std::size_t>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> open;
+  // The cells around the goal that see it start with the straight distance of their centre.
+  const auto seed = [&](Cell c) {
+    if (!grid.free(c) || !grid.segment_free(grid.center_of(c), goal)) return;
+    const auto i = grid.index(c);
+    d[i] = distance(grid.center_of(c), goal);
+    open.emplace(d[i], i);
+  };
+  seed(goal_cell_);
+  for (const auto& m : moves()) seed(Cell{goal_cell_.x + m.dx, goal_cell_.y + m.dy});
+  while (!open.empty()) {
+    const auto [di, i] = open.top();
+    open.pop();
+    if (di > d[i]) continue;
+    const Cell c{static_cast<int>(i % w), static_cast<int>(i / w)};
+    // Every move is allowed both ways, so the distance from the goal is the distance to it.
+    for (const auto& m : moves()) {
+      if (!move_free(grid, c, m)) continue;
+      const auto j = grid.index(Cell{c.x + m.dx, c.y + m.dy});
+      const double via = di + m.length * grid.resolution_;
+      if (via < d[j]) {
+        d[j] = via;
+        open.emplace(via, j);
+      }
+    }
+  }
+  distance_.assign(d.begin(), d.end());
+}
+
+std::optional<DistanceField::Start> DistanceField::start_of(Point from, std::vector<Point>& points) const {
+  const auto start = path_start(grid_, from, points);
+  if (!start) return std::nullopt;
+  // Where the path first heads for: the goal itself when in sight, else the cell around the
+  // start (the start's own, or one a move away) in sight whose distance plus the way to it is
+  // least.
+  const Point at = points.back();
+  if (grid_.segment_free(at, goal_)) return Start{*start, true, distance(at, goal_)};
+  Start best{*start, false, std::numeric_limits<double>::infinity()};
+  const auto consider = [&](Cell c) {
+    if (!grid_.free(c)) return;
+    const double rest = distance_[grid_.index(c)];
+    if (!std::isfinite(rest)) return;
+    const Point centre = grid_.center_of(c);
+    const double via = distance(at, centre) + rest;
+    if (via < best.length && grid_.segment_free(at, centre)) best = Start{c, false, via};
+  };
+  consider(*start);
+  for (const auto& m : moves()) consider(Cell{start->x + m.dx, start->y + m.dy});
+  if (!std::isfinite(best.length)) return std::nullopt;
+  return best;
+}
+
+std::optional<double> DistanceField::length_from(Point from) const {
+  std::vector<Point> points;  // `from`, and where it steps out to when off the free space
+  const auto start = start_of(from, points);
+  if (!start) return std::nullopt;
+  return distance(from, points.back()) + start->length;
+}
+
+std::optional<std::vector<Point>> DistanceField::path_from(Point from) const {
+  const auto& grid = grid_;
+  std::vector<Point> points;
+  const auto start = start_of(from, points);
+  if (!start) return std::nullopt;
+  if (start->sees_goal) {
+    points.push_back(goal_);
+    return shortcut(grid, points, goal_);
+  }
+  // Down the field: each move to the cell whose distance plus the move is least (on a
+  // shortest path that is the cell's own distance), until a cell that sees the goal.
+  Cell c = start->cell;
+  points.push_back(grid.center_of(c));
+  const std::size_t limit = distance_.size();
+  for (std::size_t steps = 0; !grid.segment_free(grid.center_of(c), goal_); ++steps) {
+    if (steps > limit) return std::nullopt;  // cannot happen: the distances only fall
+    Cell best = c;
+    double best_cost = std::numeric_limits<double>::infinity();
+    for (const auto& m : moves()) {
+      if (!move_free(grid, c, m)) continue;
+      const Cell nb{c.x + m.dx, c.y + m.dy};
+      const double cost = distance_[grid.index(nb)] + m.length * grid.resolution_;
+      if (cost < best_cost) {
+        best_cost = cost;
+        best = nb;
+      }
+    }
+    if (best == c) return std::nullopt;
+    c = best;
+    points.push_back(grid.center_of(c));
+  }
+  points.push_back(goal_);
+  return shortcut(grid, points, goal_);
 }
 
 double path_length(const std::vector<Point>& path) {

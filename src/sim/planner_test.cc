@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <random>
 
 namespace icars::sim {
@@ -213,6 +214,84 @@ TEST(Planner, PointAlongAPath) {
   EXPECT_NEAR(mid.theta, std::acos(0.0), 1e-12);
   EXPECT_EQ(point_along(path, 100).position(), (Point{3, 4}));
   EXPECT_EQ(point_along(path, -1).position(), (Point{0, 0}));
+}
+
+}  // namespace
+}  // namespace icars::sim
+
+namespace icars::sim {
+namespace {
+
+// A distance field gives the paths plan_path gives: clear of walls, from and to the same
+// points, as long within a little (both are shortest over the cells; paths of the same length over
+// the cells shortcut differently: a few percent either way, nothing on the whole), and none where plan_path finds none.
+TEST(DistanceField, PathsDownTheFieldAreThoseOfTheSearch) {
+  const auto house = load_house(kPaperHouse);
+  const OccupancyGrid grid(house, 0.25);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> x(-0.5, 10.5);
+  std::uniform_real_distribution<double> y(-0.5, 5.5);
+  for (const auto* goal_name : {"bedroom_center", "entrance", "kitchen_corner"}) {
+    const Point goal = *house.locate(goal_name);
+    const DistanceField field(grid, goal);
+    EXPECT_EQ(field.goal(), goal);
+    int planned = 0, refused = 0;
+    double total_walked = 0, total_searched = 0, total_length = 0;
+    for (int i = 0; i < 300; ++i) {
+      const Point from{x(rng), y(rng)};
+      const auto searched = plan_path(grid, from, goal);
+      const auto walked = field.path_from(from);
+      ASSERT_EQ(walked.has_value(), searched.has_value()) << from.x << "," << from.y << " to " << goal_name;
+      if (!walked) {
+        ++refused;
+        continue;
+      }
+      ++planned;
+      EXPECT_EQ(walked->front(), from);
+      EXPECT_EQ(walked->back(), goal);
+      if (grid.free(from)) expect_clear(house, grid, *walked);  // else its first step is out of a wall's margin
+      EXPECT_NEAR(path_length(*walked), path_length(*searched), 0.06 * path_length(*searched) + 0.1)
+          << from.x << "," << from.y << " to " << goal_name;
+      total_walked += path_length(*walked);
+      total_searched += path_length(*searched);
+      const auto length = field.length_from(from);
+      ASSERT_TRUE(length);
+      // Never much longer than the search's path; at times shorter (its greedy shortcuts
+      // are not the shortest way either).
+      EXPECT_LE(*length, path_length(*searched) * 1.03 + 0.05) << from.x << "," << from.y << " to " << goal_name;
+      EXPECT_GE(*length, path_length(*searched) * 0.93 - 0.05) << from.x << "," << from.y << " to " << goal_name;
+      EXPECT_GE(*length, distance(from, goal) - 1e-6);
+      total_length += *length;
+    }
+    EXPECT_GT(planned, 100);
+    EXPECT_GT(refused, 10);  // points off the map, in walls or furniture
+    // Neither is longer on the whole.
+    EXPECT_NEAR(total_walked / total_searched, 1.0, 0.01) << goal_name;
+    EXPECT_NEAR(total_length / total_searched, 1.0, 0.01) << goal_name;
+    std::printf("%s: %d paths, walked / searched %.4f, field length / searched %.4f\n", goal_name, planned,
+                total_walked / total_searched, total_length / total_searched);
+    EXPECT_FALSE(field.length_from({20, 2}));
+  }
+}
+
+TEST(DistanceField, AGoalOffTheFreeSpaceIsRefusedAndAnUnreachableStartHasNoPath) {
+  House h = open_room(4);
+  h.rooms.push_back({"other", {{4, 0}, {8, 4}}, std::nullopt});
+  h.walls.push_back({{4, 0}, {8, 0}});
+  h.walls.push_back({{8, 0}, {8, 4}});
+  h.walls.push_back({{8, 4}, {4, 4}});
+  const OccupancyGrid grid(h, 0.25);
+  EXPECT_THROW(DistanceField(grid, {4.05, 2}), std::invalid_argument);
+  EXPECT_THROW(DistanceField(grid, {20, 2}), std::invalid_argument);
+  const DistanceField field(grid, {2, 2});
+  EXPECT_FALSE(field.path_from({6, 2}));   // the other room: no door
+  EXPECT_FALSE(field.path_from({20, 2}));  // off the map
+  EXPECT_FALSE(field.length_from({6, 2}));
+  EXPECT_NEAR(*field.length_from({3, 2}), 1.0, 0.03);
+  const auto same = field.path_from({2, 2});
+  ASSERT_TRUE(same);
+  EXPECT_EQ(path_length(*same), 0);
+  EXPECT_GT(field.memory(), 0u);
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 #pragma once
 
 #include <functional>
+#include <list>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -60,13 +61,26 @@ class MapPlanner {
   const sim::OccupancyGrid& grid() const { return grid_; }
   // A place by name (waypoint, furniture, room) or "x,y"; throws CorosError when unknown.
   sim::Point locate(const std::string& name) const;
-  // The length of the planned path, nullopt when there is none (never straight-line).
+  // The length of a path from `from` to `to` around the walls, nullopt when there is none
+  // (never straight-line): a look-up in the distance field of `to` (sim::DistanceField), which
+  // is computed the first time `to` is asked about and kept (the most recently used fields, up
+  // to kFieldBytes), so a bid costs microseconds, not a search of the map. Safe to call from
+  // several threads.
   std::optional<double> path_cost(sim::Point from, sim::Point to) const;
+  // The path itself, down the same field.
   std::optional<std::vector<sim::Point>> path(sim::Point from, sim::Point to) const;
+  // The fields kept, for tests and footprint figures.
+  std::size_t fields() const;
+
+  static constexpr std::size_t kFieldBytes = std::size_t{32} << 20;
 
  private:
+  std::shared_ptr<const sim::DistanceField> field(sim::Point to) const;
+
   sim::House house_;
   sim::OccupancyGrid grid_;
+  mutable std::mutex mutex_;
+  mutable std::list<std::shared_ptr<const sim::DistanceField>> fields_;  // most recently used first
 };
 
 struct SimRobotOptions {

@@ -72,6 +72,7 @@ class OccupancyGrid {
   std::vector<int> component_;      // -1 for blocked cells
 
   friend std::optional<std::vector<Point>> plan_path(const OccupancyGrid&, Point, Point);
+  friend class DistanceField;
 };
 
 // A* over 8-connected cells (no diagonal squeezing past a blocked corner), then greedy
@@ -82,6 +83,44 @@ class OccupancyGrid {
 std::optional<std::vector<Point>> plan_path(const OccupancyGrid& grid, Point from, Point to);
 
 double path_length(const std::vector<Point>& path);
+
+// The distance from every free cell to one goal over the grid, computed once (Dijkstra over 32
+// directions: every move of at most 3 cells each way, allowed when every cell its segment
+// touches is free; the cells that see the goal start with their straight distance to it).
+// Then the length of a path to the goal from anywhere is a look-up (the best of the cells
+// around the start that it sees), and a path is a walk down the field plus plan_path's
+// line-of-sight shortcuts, not a search. What a robot bidding for errands uses
+// (coros::MapPlanner keeps a field per place it was asked about). Over 500 paths of the paper
+// house the length is within 0.3% of plan_path's on the whole; one path's up to 3% longer, or
+// up to 7% shorter where plan_path's greedy shortcuts miss the shortest way (planner_test).
+class DistanceField {
+ public:
+  // `goal` must be free (std::invalid_argument otherwise). The field refers to `grid`: keep
+  // it alive.
+  DistanceField(const OccupancyGrid& grid, Point goal);
+
+  Point goal() const { return goal_; }
+  // The length of a path from `from` to the goal; nullopt when there is none (as plan_path:
+  // `from` may be a little off the free space, the path then steps out first).
+  std::optional<double> length_from(Point from) const;
+  // A path from `from` to the goal, as plan_path's; nullopt when there is none.
+  std::optional<std::vector<Point>> path_from(Point from) const;
+  // Bytes the field holds.
+  std::size_t memory() const { return distance_.size() * sizeof(float); }
+
+ private:
+  struct Start {
+    Cell cell;          // the first cell of the walk
+    bool sees_goal;     // the goal is in sight: no walk
+    double length;      // from where the path starts (after a step out) to the goal
+  };
+  std::optional<Start> start_of(Point from, std::vector<Point>& points) const;
+
+  const OccupancyGrid& grid_;
+  Point goal_;
+  Cell goal_cell_;
+  std::vector<float> distance_;  // to the goal, in metres; infinity where it cannot be reached
+};
 
 // The point at distance `along` from the start of `path` (clamped to its ends), and the
 // heading of the segment it is on.
