@@ -316,8 +316,13 @@ void ConnectionManager::set_acceptor(Connection::Acceptor acceptor) {
 
 void ConnectionManager::set_tls(const TlsOptions& options) {
   options.validate();
+  // A context loads what its files hold, so configured files are checked here, at start. With
+  // none and TLS only where a link needs it (the default), the client context is made at the
+  // first TLS connect: OpenSSL costs a process about 2 MiB the moment it is first used, which
+  // a device manager on loopback never needs.
   auto server = options.certificate_file.empty() ? nullptr : make_context(options, true);
-  auto client = make_context(options, false);
+  const bool configured = options.mode == TlsMode::on || !options.ca_file.empty() || !options.certificate_file.empty();
+  auto client = configured ? make_context(options, false) : nullptr;
   std::lock_guard lock(mutex_);
   tls_options_ = options;
   server_tls_ = std::move(server);
