@@ -104,9 +104,13 @@ std::map<std::string, std::string> house_effects() {
 const std::vector<std::string> kCommands = {
     "turn on the TV",  "channel 5",  "volume up",   "play music",     "stop",
     "turn off the TV", "channel 12", "volume down", "stop the music", "channel 23"};
-// None of the vocabulary: these must come out not recognized.
-const std::vector<std::string> kOutOfVocabulary = {"what time is it", "open the window",
-                                                   "good night"};
+// None of the vocabulary: these must come out not recognized. Some are near a command (a phrase
+// inside a longer sentence, a word that sounds like a short command, a device the house does
+// not have), as a person talking in the room would be.
+const std::vector<std::string> kOutOfVocabulary = {
+    "what time is it", "open the window", "good night",       "stop by the shop later",
+    "turn on the oven", "so",             "all right",        "I saw it on TV",
+    "thank you",        "what channel is this", "call mom",   "the music was nice"};
 
 constexpr double kLeadNoise = 1.0;   // s of the room before the utterance's render
 constexpr double kTrailNoise = 1.0;  // s after it
