@@ -52,8 +52,26 @@ check "benchmark smoke run: dashboard_bench" build/release/bench/dashboard_bench
 check "benchmark smoke run: mqtt_bridge" build/release/bench/mqtt_bridge --runs 1 --commands 50 >/dev/null
 check "benchmark smoke run: speech_bench" build/release/bench/speech_bench --quick >/dev/null
 results=$(mktemp -d)
-build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
-  --out "$results" >/dev/null 2>"$results/log" || { cat "$results/log"; failed+=("benchmark smoke run: icars-compare"); }
+if build/release/bench/compare/icars-compare run --quick --reps 1 --systems raw-tcp,planet \
+  --out "$results" >/dev/null 2>"$results/log"; then
+  # PLANET's small-call p50 over raw TCP's in this smoke run (2,000 calls each) must stay
+  # within twice the worst seen on a 2-core CI machine: 0.70 to 1.06 over six runs of this
+  # command (the full run's ratio, docs/results/compare.csv, is measured differently: 20,000
+  # calls, 5 repetitions). A PLANET call twice as slow fails the run.
+  python3 - "$results/compare.csv" 1.06 <<'PY' || failed+=("benchmark smoke run: small-call ratio within 2x")
+import csv, sys
+worst_seen = float(sys.argv[2])
+for row in csv.DictReader(open(sys.argv[1])):
+    if row["workload"] == "small_p50_us" and row["system"] == "planet":
+        ratio = float(row["ratio_to_raw_tcp"])
+        print(f"test.sh: small-call p50 {ratio:.2f}x raw TCP (limit {2 * worst_seen:.2f}x)")
+        sys.exit(0 if ratio <= 2 * worst_seen else 1)
+sys.exit(f"{sys.argv[1]}: no small_p50_us row for planet")
+PY
+else
+  cat "$results/log"
+  failed+=("benchmark smoke run: icars-compare")
+fi
 rm -rf "$results"
 phase "done"
 if [ ${#failed[@]} -gt 0 ]; then
