@@ -99,13 +99,18 @@ TEST(Planner, PathsBetweenRandomFreePointsStayClear) {
   }
 }
 
-TEST(Planner, UnreachableTargetsHaveNoPath) {
-  // Two rooms with a wall between them and no door.
+// Two 4 m rooms side by side, a wall between them and no door.
+House two_rooms_without_a_door() {
   House h = open_room(4);
   h.rooms.push_back({"other", {{4, 0}, {8, 4}}, std::nullopt});
   h.walls.push_back({{4, 0}, {8, 0}});
   h.walls.push_back({{8, 0}, {8, 4}});
   h.walls.push_back({{8, 4}, {4, 4}});
+  return h;
+}
+
+TEST(Planner, UnreachableTargetsHaveNoPath) {
+  const House h = two_rooms_without_a_door();
   const OccupancyGrid grid(h, 0.25);
   EXPECT_FALSE(plan_path(grid, {2, 2}, {6, 2}));
   EXPECT_FALSE(grid.connected({2, 2}, {6, 2}));
@@ -275,11 +280,7 @@ TEST(DistanceField, PathsDownTheFieldAreThoseOfTheSearch) {
 }
 
 TEST(DistanceField, AGoalOffTheFreeSpaceIsRefusedAndAnUnreachableStartHasNoPath) {
-  House h = open_room(4);
-  h.rooms.push_back({"other", {{4, 0}, {8, 4}}, std::nullopt});
-  h.walls.push_back({{4, 0}, {8, 0}});
-  h.walls.push_back({{8, 0}, {8, 4}});
-  h.walls.push_back({{8, 4}, {4, 4}});
+  const House h = two_rooms_without_a_door();
   const OccupancyGrid grid(h, 0.25);
   EXPECT_THROW(DistanceField(grid, {4.05, 2}), std::invalid_argument);
   EXPECT_THROW(DistanceField(grid, {20, 2}), std::invalid_argument);
