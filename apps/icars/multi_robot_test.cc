@@ -127,6 +127,7 @@ TEST(MultiRobot, InOneProcessTheRobotsBidAndTheNightPatrolIsSplitBetweenThem) {
   // The night ended in the morning: the user got up and the coordinator observes again.
   ASSERT_FALSE(night.transitions.empty());
   EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
 }
 
 // A behavior with robot="any" started again (here a repeat's second run) listens to its robots
@@ -305,6 +306,7 @@ std::string night_losing_robot2(Loss loss) {
   if (!night.transitions.empty()) {
     EXPECT_EQ(str(night.transitions.back(), "to"), "Observation") << dump(night.transitions);
   }
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
   return first_reason;
 }
 
@@ -369,6 +371,7 @@ TEST(MultiRobot, BadFleetOptionsStopWithTheReason) {
     EXPECT_NE(run.exit_code, 0) << args;
     EXPECT_NE(run.output.find("--fleet-"), std::string::npos) << run.output;
   }
+  if (!::testing::Test::HasFailure()) std::filesystem::remove_all(dir);
 }
 
 }  // namespace
