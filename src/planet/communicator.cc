@@ -371,7 +371,9 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
       static_cast<RmiCode>(m[0]) == RmiCode::notify) {
     std::unique_lock lock(bulk_mutex_);
     if (bulk_ && bulk_pending_.contains(c.get())) {
-      post_bulk(lock, c, std::vector<std::byte>(m.begin(), m.end()), true);
+      std::vector<std::vector<std::byte>> copy;
+      copy.emplace_back(m.begin(), m.end());
+      post_bulk(lock, c, std::move(copy), true);
       return;
     }
   }
@@ -379,17 +381,20 @@ void Communicator::on_message(const std::shared_ptr<Connection>& c, std::span<co
 }
 
 void Communicator::post_bulk(std::unique_lock<std::mutex>& lock, const std::shared_ptr<Connection>& c,
-                             std::vector<std::byte> message, bool notify) {
+                             std::vector<std::vector<std::byte>> blocks, bool notify) {
   if (!bulk_) bulk_ = std::make_unique<asio::thread_pool>(1);
   if (notify) {
     ++bulk_pending_[c.get()];
     bulk_notifies_.fetch_add(1, std::memory_order_acq_rel);
   }
-  asio::post(*bulk_, [this, c, notify, message = std::move(message),
+  asio::post(*bulk_, [this, c, notify, blocks = std::move(blocks),
                       hold = Activity::Hold(activity().get())]() mutable {
-    handle_message(c, message);
+    {
+      Reader r(blocks);  // read where the connection assembled it: never joined
+      handle_message(c, r);
+    }
     hold.release();
-    detail::give_buffer(std::move(message));
+    for (auto& b : blocks) detail::give_buffer(std::move(b));
     if (!notify) return;
     std::lock_guard done(bulk_mutex_);
     if (auto it = bulk_pending_.find(c.get()); it != bulk_pending_.end() && --it->second == 0) {
@@ -402,6 +407,10 @@ void Communicator::post_bulk(std::unique_lock<std::mutex>& lock, const std::shar
 
 void Communicator::handle_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) {
   Reader r(m);
+  handle_message(c, r);
+}
+
+void Communicator::handle_message(const std::shared_ptr<Connection>& c, Reader& r) {
   std::uint32_t request_id = 0;
   RmiCode code{};
   try {
@@ -452,11 +461,13 @@ void Communicator::on_large_message(const std::shared_ptr<Connection>& c,
                                     std::vector<std::vector<std::byte>> blocks) {
   const auto code = blocks.front().empty() ? RmiCode{} : static_cast<RmiCode>(blocks.front()[0]);
   if (code != RmiCode::call && code != RmiCode::notify && code != RmiCode::reply) {
-    handle_message(c, join(std::move(blocks)));  // anything else keeps its place on the io thread
+    Reader r(blocks);  // anything else keeps its place on the io thread
+    handle_message(c, r);
+    for (auto& b : blocks) detail::give_buffer(std::move(b));
     return;
   }
   std::unique_lock lock(bulk_mutex_);
-  post_bulk(lock, c, join(std::move(blocks)), code == RmiCode::notify);
+  post_bulk(lock, c, std::move(blocks), code == RmiCode::notify);
 }
 
 void Communicator::dispatch_request(const std::shared_ptr<Connection>& c, Reader& r, bool oneway) {

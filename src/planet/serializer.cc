@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cstring>
 #include <limits>
 
 #include "buffer_pool.h"
@@ -44,8 +46,87 @@ std::size_t Reader::count(std::size_t min_item_size, const char* what) {
   return n;
 }
 
+Reader::Reader(std::span<const std::vector<std::byte>> blocks) : blocks_(blocks) {
+  for (const auto& b : blocks) size_ += b.size();
+  if (!blocks_.empty()) bytes_ = blocks_.front();
+}
+
+void Reader::next_block() {
+  base_ += bytes_.size();
+  pos_ = 0;
+  bytes_ = blocks_[++block_];
+}
+
+void Reader::copy_out(std::byte* to, std::size_t n) {
+  while (n > 0) {
+    while (pos_ == bytes_.size()) next_block();  // n <= remaining(): a block with bytes follows
+    const std::size_t here = std::min(n, bytes_.size() - pos_);
+    std::memcpy(to, bytes_.data() + pos_, here);
+    to += here;
+    pos_ += here;
+    n -= here;
+  }
+}
+
+const std::byte* Reader::take_across(std::size_t n, const char* what) {
+  if (n > remaining()) underflow(n, what);
+  while (pos_ == bytes_.size() && block_ + 1 < blocks_.size()) next_block();
+  if (n <= bytes_.size() - pos_) {
+    const std::byte* p = bytes_.data() + pos_;
+    pos_ += n;
+    return p;
+  }
+  auto& copy = kept_.emplace_back(n);
+  copy_out(copy.data(), n);
+  return copy.data();
+}
+
+std::vector<std::byte> Reader::copy(std::size_t n) {
+  if (n > remaining()) underflow(n, "bytes");
+  if (n <= bytes_.size() - pos_) return detail::copy_bytes(raw(n));
+  std::vector<std::byte> out = detail::take_buffer(n);  // n is large: it straddles blocks
+  out.reserve(n);
+  while (out.size() < n) {  // appended block by block: nothing is written twice
+    while (pos_ == bytes_.size()) next_block();
+    const std::size_t here = std::min(n - out.size(), bytes_.size() - pos_);
+    const auto from = bytes_.subspan(pos_, here);
+    out.insert(out.end(), from.begin(), from.end());
+    pos_ += here;
+  }
+  return out;
+}
+
+void Reader::copy_range(std::size_t start, std::size_t n, std::byte* to) const {
+  std::size_t at = 0;  // where blocks_[i] starts
+  for (const auto& b : blocks_) {
+    if (n == 0) return;
+    if (start < at + b.size()) {
+      const std::size_t from = start - at;
+      const std::size_t here = std::min(n, b.size() - from);
+      std::memcpy(to, b.data() + from, here);
+      to += here;
+      start += here;
+      n -= here;
+    }
+    at += b.size();
+  }
+}
+
+std::span<const std::byte> Reader::kept(std::size_t start, std::size_t n) const {
+  if (start >= base_ && start - base_ + n <= bytes_.size()) return bytes_.subspan(start - base_, n);
+  auto& copy = kept_.emplace_back(n);
+  copy_range(start, n, copy.data());
+  return copy;
+}
+
+std::span<const std::byte> Reader::rest() const { return kept(position(), remaining()); }
+
+std::span<const std::byte> Reader::span_from(std::size_t start) const {
+  return kept(start, position() - start);
+}
+
 void Reader::fail(const std::string& what) const {
-  throw Error(ErrorKind::bad_data, fmt::format("{} (at byte {})", what, pos_));
+  throw Error(ErrorKind::bad_data, fmt::format("{} (at byte {})", what, position()));
 }
 
 void Reader::underflow(std::size_t n, const char* what) const {

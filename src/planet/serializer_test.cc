@@ -124,6 +124,87 @@ TEST(Serializer, HugeValuesRoundTrip) {
   EXPECT_EQ(round_trip(many), many);
 }
 
+// `bytes` cut into blocks of the given sizes (the rest in one last block), as a connection
+// assembles a large message.
+std::vector<std::vector<std::byte>> in_blocks(const std::vector<std::byte>& bytes,
+                                              std::initializer_list<std::size_t> sizes) {
+  std::vector<std::vector<std::byte>> blocks;
+  std::size_t at = 0;
+  for (std::size_t n : sizes) {
+    blocks.emplace_back(bytes.begin() + static_cast<std::ptrdiff_t>(at),
+                        bytes.begin() + static_cast<std::ptrdiff_t>(at + n));
+    at += n;
+  }
+  blocks.emplace_back(bytes.begin() + static_cast<std::ptrdiff_t>(at), bytes.end());
+  return blocks;
+}
+
+TEST(Serializer, ValuesThatStraddleBlocksAreReadWithoutJoiningThem) {
+  Binary big;
+  big.bytes.resize(3u << 20);
+  for (std::size_t i = 0; i < big.bytes.size(); ++i) big.bytes[i] = std::byte(i * 7);
+  std::vector<std::byte> buf;
+  Writer w(buf);
+  encode_tagged(w, std::int32_t{-5});
+  encode_tagged(w, std::string("a string across a block boundary"));
+  encode_tagged(w, big);
+  encode_tagged(w, std::vector<std::string>{"after", "the", "binary"});
+  // Cuts inside the int, inside the string, inside the binary's length, an empty block, and
+  // blocks smaller than a value.
+  const auto blocks = in_blocks(buf, {3, 20, 1, 0, 2, 1u << 20, 7, 1u << 20});
+  Reader r(blocks);
+  EXPECT_EQ(r.remaining(), buf.size());
+  EXPECT_EQ(decode_tagged<std::int32_t>(r), -5);
+  EXPECT_EQ(decode_tagged<std::string>(r), "a string across a block boundary");
+  const std::size_t binary_at = r.position();
+  EXPECT_EQ(decode_tagged<Binary>(r), big);
+  const std::size_t after = r.position();
+  // span_from and rest see the input as one, wherever it was cut.
+  const auto spanned = r.span_from(binary_at);
+  ASSERT_EQ(spanned.size(), after - binary_at);
+  EXPECT_TRUE(std::equal(spanned.begin(), spanned.end(), buf.begin() + static_cast<std::ptrdiff_t>(binary_at)));
+  const auto rest = r.rest();
+  EXPECT_TRUE(std::equal(rest.begin(), rest.end(), buf.begin() + static_cast<std::ptrdiff_t>(after),
+                         buf.end()));
+  EXPECT_EQ(r.remaining(), rest.size());
+  EXPECT_EQ(decode_tagged<std::vector<std::string>>(r),
+            (std::vector<std::string>{"after", "the", "binary"}));
+  EXPECT_EQ(r.remaining(), 0u);
+  EXPECT_THROW(r.u8(), Error);
+}
+
+TEST(Serializer, TruncatedAndGarbageBlocksAreRejectedNeverOverread) {
+  std::vector<std::byte> buf;
+  Writer w(buf);
+  encode_tagged(w, std::string(100, 'x'));
+  buf.pop_back();
+  const auto blocks = in_blocks(buf, {10, 50});
+  Reader truncated(blocks);
+  EXPECT_THROW((void)decode_tagged<std::string>(truncated), Error);
+  // A binary claiming more than the blocks hold.
+  const auto lying = in_blocks(bytes({0x09, 0x00, 0x10, 0x00, 0x00, 1, 2, 3}), {2, 3});
+  Reader r(lying);
+  EXPECT_THROW((void)decode_tagged<Binary>(r), Error);
+  const std::vector<std::vector<std::byte>> none;
+  Reader empty(none);
+  EXPECT_EQ(empty.remaining(), 0u);
+  EXPECT_THROW(empty.u32(), Error);
+  std::uint32_t seed = 777;
+  for (int i = 0; i < 5000; ++i) {
+    std::vector<std::byte> garbage(static_cast<std::size_t>(seed % 64));
+    for (auto& b : garbage) {
+      seed = seed * 1103515245u + 12345u;
+      b = std::byte(seed >> 24);
+    }
+    const auto cut = in_blocks(garbage, {garbage.size() / 3, garbage.size() / 3});
+    try {
+      Reader g(cut);
+      (void)decode_tagged<std::vector<std::vector<std::string>>>(g);
+    } catch (const Error&) {
+    }
+  }
+}
+
 TEST(Serializer, WrongTypeNamesBothTypes) {
   const auto buf = tagged_bytes(std::string("x"));
   Reader r(buf);

@@ -55,6 +55,38 @@ TEST(Transfer, SmallCallsCompleteWhileA50MiBBinaryIsInFlight) {
             << " us\n";
 }
 
+Binary pattern_of(std::size_t size, unsigned step) {
+  Binary b;
+  b.bytes.resize(size);
+  for (std::size_t i = 0; i < size; ++i) b.bytes[i] = std::byte(static_cast<unsigned>(i) * step);
+  return b;
+}
+
+// A large message is read where the connection assembled it (in 1 MiB blocks, never joined):
+// values that straddle blocks arrive whole, and a decoded Binary owns its bytes, so it stays
+// intact after the blocks it was read from went back to the pool and carried other messages.
+TEST(Transfer, LargeValuesReadFromTheirBlocksOutliveTheMessage) {
+  auto server = planet_test::start_test_server();
+  Communicator client;
+  auto peer = client.connect("127.0.0.1", server.port);
+  ASSERT_TRUE(peer->wait_connected(20s));
+  Proxy echo = Proxy(client, peer, "/echo").with_timeout(120s);
+
+  const Binary first = pattern_of((5u << 20) + 3, 13);
+  const Binary kept = echo.call(Echo::echo_binary, first);
+  // Several binaries in one message, each crossing block boundaries at other offsets.
+  const std::vector<Binary> several{pattern_of((3u << 19) + 1, 7), pattern_of(5, 3),
+                                    pattern_of((1u << 20) + 17, 11)};
+  EXPECT_EQ(echo.call(Echo::echo_binaries, several), several);
+  // A sequence of bytes, read element by element across the blocks.
+  std::vector<std::uint8_t> bytes((2u << 20) + 9);
+  for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<std::uint8_t>(i * 5);
+  EXPECT_EQ(echo.call(Echo::echo_bytes, bytes), bytes);
+  const Binary second = pattern_of(5u << 20, 29);
+  EXPECT_EQ(echo.call(Echo::echo_binary, second), second);
+  EXPECT_EQ(kept, first) << "a Binary changed after its message's memory was reused";
+}
+
 // A servant still working on a call with a large argument (here: held until released) does not
 // hold up small calls on the same connection: large messages are dispatched on the bulk thread.
 struct Holder {

@@ -149,10 +149,11 @@ class Communicator final : private MessageHandler {
 
   void on_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m) override;
   void handle_message(const std::shared_ptr<Connection>& c, std::span<const std::byte> m);
-  // Hands `message` to the bulk thread (bulk_mutex_ held); a NOTIFY is counted in
-  // bulk_pending_ until handled.
+  void handle_message(const std::shared_ptr<Connection>& c, Reader& r);
+  // Hands a message, in the blocks it was assembled in, to the bulk thread (bulk_mutex_ held);
+  // a NOTIFY is counted in bulk_pending_ until handled.
   void post_bulk(std::unique_lock<std::mutex>& lock, const std::shared_ptr<Connection>& c,
-                 std::vector<std::byte> message, bool notify);
+                 std::vector<std::vector<std::byte>> blocks, bool notify);
   void on_large_message(const std::shared_ptr<Connection>& c,
                         std::vector<std::vector<std::byte>> blocks) override;
   void on_message_refused(const std::shared_ptr<Connection>& c, std::span<const std::byte> first,

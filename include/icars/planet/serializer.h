@@ -110,11 +110,16 @@ class Writer {
   std::vector<std::byte>* out_;
 };
 
-// Reads encoded bytes from a span it does not own. Every read checks bounds and throws
-// Error(bad_data) naming what was being read, so garbage input never reads out of range.
+// Reads encoded bytes it does not own: one span, or the blocks a connection assembled a large
+// message in (read where they lie, without joining them into one buffer first). Every read checks
+// bounds and throws Error(bad_data) naming what was being read, so garbage input never reads out
+// of range.
 class Reader {
  public:
-  explicit Reader(std::span<const std::byte> bytes) : bytes_(bytes) {}
+  explicit Reader(std::span<const std::byte> bytes) : bytes_(bytes), size_(bytes.size()) {}
+  // The concatenation of `blocks` (which must outlive the reader). A value that straddles two
+  // blocks is read from a copy the reader keeps until it is destroyed.
+  explicit Reader(std::span<const std::vector<std::byte>> blocks);
 
   std::uint8_t u8() { return std::to_integer<std::uint8_t>(*take(1, "byte")); }
   std::uint16_t u16() { return detail::load_be16(take(2, "short")); }
@@ -123,6 +128,9 @@ class Reader {
   float f32() { return std::bit_cast<float>(u32()); }
   double f64() { return std::bit_cast<double>(u64()); }
   std::span<const std::byte> raw(std::size_t n) { return {take(n, "bytes"), n}; }
+  // The next `n` bytes as a buffer of their own (a large one in recycled memory, buffer_pool.h),
+  // copied once from wherever they lie.
+  std::vector<std::byte> copy(std::size_t n);
   // A u32 count of items that each need at least `min_item_size` bytes; rejects counts that the
   // remaining input cannot hold, so an absurd length never causes a huge allocation.
   std::size_t count(std::size_t min_item_size, const char* what);
@@ -132,27 +140,37 @@ class Reader {
   }
   std::string str() { return std::string(str_view()); }
 
-  std::size_t remaining() const { return bytes_.size() - pos_; }
-  std::size_t position() const { return pos_; }
-  std::span<const std::byte> rest() const { return bytes_.subspan(pos_); }
-  std::span<const std::byte> span_from(std::size_t start) const {
-    return bytes_.subspan(start, pos_ - start);
-  }
+  std::size_t remaining() const { return size_ - position(); }
+  std::size_t position() const { return base_ + pos_; }
+  // The unread bytes, and the bytes from `start` to the position, as one span (copied into the
+  // reader when they straddle blocks).
+  std::span<const std::byte> rest() const;
+  std::span<const std::byte> span_from(std::size_t start) const;
   [[noreturn]] void fail(const std::string& what) const;
 
   std::size_t depth = 0;  // current nesting, checked against kMaxTypeDepth
 
  private:
   const std::byte* take(std::size_t n, const char* what) {
-    if (n > remaining()) underflow(n, what);
+    if (n > bytes_.size() - pos_) return take_across(n, what);
     const std::byte* p = bytes_.data() + pos_;
     pos_ += n;
     return p;
   }
+  const std::byte* take_across(std::size_t n, const char* what);  // beyond the current block
+  void next_block();
+  void copy_out(std::byte* to, std::size_t n);  // the next n bytes, across blocks
+  void copy_range(std::size_t start, std::size_t n, std::byte* to) const;
+  std::span<const std::byte> kept(std::size_t start, std::size_t n) const;
   [[noreturn]] void underflow(std::size_t n, const char* what) const;
 
-  std::span<const std::byte> bytes_;
-  std::size_t pos_ = 0;
+  std::span<const std::byte> bytes_;  // the current block (the whole input for one span)
+  std::size_t pos_ = 0;               // within bytes_
+  std::size_t base_ = 0;              // where bytes_ starts in the input
+  std::size_t size_ = 0;              // of the whole input
+  std::span<const std::vector<std::byte>> blocks_;  // empty for one span
+  std::size_t block_ = 0;                           // bytes_ is blocks_[block_]
+  mutable std::vector<std::vector<std::byte>> kept_;  // copies of values that straddle blocks
 };
 
 // --- Codecs --------------------------------------------------------------------------------
@@ -241,7 +259,7 @@ struct Codec<Binary> : detail::ScalarCodec<Binary, TypeCode::binary, 4> {
   }
   static Binary decode(Reader& r) {
     const std::size_t n = r.count(1, "binary");
-    return Binary{detail::copy_bytes(r.raw(n))};
+    return Binary{r.copy(n)};
   }
 };
 template <>
