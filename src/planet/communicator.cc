@@ -457,6 +457,24 @@ void Communicator::handle_message(const std::shared_ptr<Connection>& c, Reader& 
   }
 }
 
+void Communicator::read_reply(const Link& link, std::uint32_t request_id,
+                              std::chrono::steady_clock::time_point until,
+                              const std::function<bool()>& answered) {
+  const auto c = link.connection();
+  if (!c) return;
+  c->read_directly(until, answered, [&](std::span<const std::byte> m) {
+    // Only the reply (or error) to this call; anything else is the io thread's to handle.
+    if (m.size() < 5) return false;
+    const auto code = static_cast<RmiCode>(m[0]);
+    if ((code != RmiCode::reply && code != RmiCode::error) ||
+        detail::load_be32(m.data() + 1) != request_id) {
+      return false;
+    }
+    handle_message(c, m);
+    return true;
+  });
+}
+
 void Communicator::on_large_message(const std::shared_ptr<Connection>& c,
                                     std::vector<std::vector<std::byte>> blocks) {
   const auto code = blocks.front().empty() ? RmiCode{} : static_cast<RmiCode>(blocks.front()[0]);

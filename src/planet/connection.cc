@@ -476,15 +476,84 @@ void Connection::read_more() {
     rend_ -= rbegin_;
     rbegin_ = 0;
   }
-  auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
-    self->on_read(ec, n);
-  };
-  const auto space = asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_);
   if (tls_) {
-    tls_->stream.async_read_some(space, std::move(on_done));
-  } else {
-    socket_.async_read_some(space, std::move(on_done));
+    const auto space = asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_);
+    tls_->stream.async_read_some(space, [self = shared_from_this()](const std::error_code& ec,
+                                                                    std::size_t n) {
+      self->on_read(ec, n);
+    });
+    return;
   }
+  // Plaintext: wait until the socket has bytes (a peek reads nothing), then read them under
+  // read_mutex_, so that the io thread and a direct reader never both take from the stream.
+  if (peek_armed_) return;
+  peek_armed_ = true;
+  socket_.async_receive(asio::buffer(&peek_byte_, 1), asio::socket_base::message_peek,
+                        [self = shared_from_this()](const std::error_code& ec, std::size_t) {
+                          self->peek_armed_ = false;
+                          self->on_readable(ec);
+                        });
+}
+
+void Connection::on_readable(const std::error_code& ec) {
+  if (state_.load() == State::closed) return;
+  std::unique_lock lock(read_mutex_);
+  if (direct_reader_) {  // a caller reads for now; it hands the socket back (resume_reading)
+    io_parked_ = true;
+    return;
+  }
+  if (ec) {
+    if (ec != asio::error::operation_aborted) handle_buffered(false);  // what came before the end
+    on_read(ec, 0);
+    return;
+  }
+  read_available();
+}
+
+void Connection::read_available() {
+  if (rend_ == kReadBufferSize) {
+    std::memmove(rbuf_.get(), rbuf_.get() + rbegin_, rend_ - rbegin_);
+    rend_ -= rbegin_;
+    rbegin_ = 0;
+  }
+  const ssize_t n = ::recv(socket_.native_handle(), rbuf_.get() + rend_, kReadBufferSize - rend_,
+                           MSG_DONTWAIT);
+  if (n > 0) {
+    on_read({}, static_cast<std::size_t>(n));
+  } else if (n == 0) {
+    handle_buffered(false);  // what a direct reader left, before the end
+    on_read(asio::error::make_error_code(asio::error::eof), 0);
+  } else if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR) {
+    if (rbegin_ != rend_) {
+      handle_buffered();  // what a direct reader left
+    } else {
+      read_more();  // a direct reader took what there was
+    }
+  } else {
+    on_read(std::error_code(errno, std::system_category()), 0);
+  }
+}
+
+void Connection::resume_reading() {
+  if (state_.load() == State::closed) return;
+  std::unique_lock lock(read_mutex_);
+  if (direct_reader_) {
+    io_parked_ = true;
+    return;
+  }
+  read_available();
+}
+
+void Connection::note_received(std::size_t n) {
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_received_.load(std::memory_order_relaxed) >= options_.heartbeat_timeout) {
+    // Bytes after a silence this long may be old news (this process did not run): until a
+    // heartbeat timeout has passed, senders check that the peer has not hung up meanwhile.
+    suspect_until_.store(now + options_.heartbeat_timeout, std::memory_order_relaxed);
+  }
+  last_received_.store(now, std::memory_order_relaxed);
+  std::lock_guard lock(send_mutex_);
+  stats_.bytes_received += n;
 }
 
 void Connection::on_read(const std::error_code& ec, std::size_t n) {
@@ -497,17 +566,11 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
     return;
   }
   rend_ += n;
-  const auto now = std::chrono::steady_clock::now();
-  if (now - last_received_.load(std::memory_order_relaxed) >= options_.heartbeat_timeout) {
-    // Bytes after a silence this long may be old news (this process did not run): until a
-    // heartbeat timeout has passed, senders check that the peer has not hung up meanwhile.
-    suspect_until_.store(now + options_.heartbeat_timeout, std::memory_order_relaxed);
-  }
-  last_received_.store(now, std::memory_order_relaxed);
-  {
-    std::lock_guard lock(send_mutex_);
-    stats_.bytes_received += n;
-  }
+  note_received(n);
+  handle_buffered();
+}
+
+void Connection::handle_buffered(bool read_next) {
   handling_read_ = true;
   struct HandlingRead {
     std::atomic<bool>& flag;
@@ -546,7 +609,73 @@ void Connection::on_read(const std::error_code& ec, std::size_t n) {
   } else if (completed_frame || !partial_frame_since_) {
     partial_frame_since_ = last_received_.load(std::memory_order_relaxed);
   }
-  read_more();
+  if (read_next) read_more();
+}
+
+bool Connection::read_directly(std::chrono::steady_clock::time_point until,
+                               const std::function<bool()>& answered,
+                               const std::function<bool(std::span<const std::byte>)>& take) {
+  if (tls_ || options_.activity) return false;
+  {
+    std::unique_lock lock(read_mutex_, std::try_to_lock);
+    if (!lock || direct_reader_ || read_closed_ || state_.load() != State::open ||
+        close_after_flush_ || rbegin_ != rend_ || incoming_count_.load() != 0 || answered()) {
+      return false;
+    }
+    direct_reader_ = true;
+  }
+  bool taken = false;
+  bool handed_over = false;
+  while (!taken && !handed_over) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now >= until || answered()) break;
+    // In slices, so that a call completed elsewhere (cancelled, its connection failed) is seen.
+    const auto slice =
+        std::min<std::chrono::steady_clock::duration>(until - now, std::chrono::milliseconds(50));
+    pollfd p{};
+    p.fd = socket_.native_handle();
+    p.events = POLLIN;
+    const int ready = ::poll(&p, 1, static_cast<int>(std::chrono::ceil<std::chrono::milliseconds>(slice).count()));
+    if (ready < 0 && errno != EINTR) break;
+    if (ready <= 0) continue;
+    std::lock_guard lock(read_mutex_);
+    if (read_closed_ || state_.load() != State::open) break;
+    const ssize_t n = ::recv(socket_.native_handle(), rbuf_.get() + rend_,
+                             kReadBufferSize - rend_, MSG_DONTWAIT);
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) continue;
+    handed_over = true;  // unless the first frame is the message `take` waits for
+    if (n <= 0) break;   // the end of the stream, or an error: the io thread reports it
+    rend_ += static_cast<std::size_t>(n);
+    note_received(static_cast<std::size_t>(n));
+    const std::span<const std::byte> avail(rbuf_.get() + rbegin_, rend_ - rbegin_);
+    const HeaderParse parsed = parse_header(avail);
+    if (!parsed.error.empty() || !parsed.header || avail.size() < parsed.header->length) break;
+    const FrameHeader& h = *parsed.header;
+    if (h.code != FrameCode::data || h.frame_no != 0 || !h.final ||
+        h.payload_size() > options_.max_message_size) {
+      break;
+    }
+    if (take(avail.subspan(kFrameHeaderSize, h.payload_size()))) {
+      rbegin_ += h.length;
+      if (rbegin_ == rend_) rbegin_ = rend_ = 0;
+      {
+        std::lock_guard stats(send_mutex_);
+        ++stats_.frames_received;
+        ++stats_.messages_received;
+        ++stats_.messages_read_by_callers;
+      }
+      taken = true;
+      handed_over = false;
+    }
+  }
+  // The socket goes back to the io thread, with whatever was read and not taken.
+  std::lock_guard lock(read_mutex_);
+  direct_reader_ = false;
+  if (io_parked_ || rbegin_ != rend_) {
+    io_parked_ = false;
+    asio::post(socket_.get_executor(), [self = shared_from_this()] { self->resume_reading(); });
+  }
+  return taken;
 }
 
 bool Connection::handle_frame(const FrameHeader& h, std::span<const std::byte> payload) {
@@ -691,6 +820,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
                                         options_.max_incomplete_messages));
     }
     incoming_.push_back(std::make_unique<detail::IncomingMessage>());
+    incoming_count_.store(incoming_.size());
     in = incoming_.back().get();
     in->msg_no = h.msg_no;
     in->last_progress = now;
@@ -721,6 +851,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
   in->last_progress = now;
   if (in->refused) {  // frames already in flight when we said NO_MORE
     if (h.final) incoming_.erase(it);
+    incoming_count_.store(incoming_.size());
     return true;
   }
   if (in->size + payload.size() > options_.max_message_size) {
@@ -738,6 +869,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     in->blocks = {};
     in->size = 0;
     if (h.final) incoming_.erase(it);
+    incoming_count_.store(incoming_.size());
     handler_.on_message_refused(shared_from_this(), received, reason);
     link_.handled();
     if (state_.load() == State::closed) return false;
@@ -751,6 +883,7 @@ bool Connection::handle_data(const FrameHeader& h, std::span<const std::byte> pa
     incomplete_bytes_ -= in->size;
     forget_incoming(*in);
     incoming_.erase(it);
+    incoming_count_.store(incoming_.size());
     {
       std::lock_guard lock(send_mutex_);
       ++stats_.messages_received;
@@ -1043,10 +1176,15 @@ void Connection::fail(ErrorKind kind, const std::string& reason, bool quiet) {
   }
   timer_.cancel();
   std::error_code ignored;
-  socket_.shutdown(asio::ip::tcp::socket::shutdown_both, ignored);
-  socket_.close(ignored);
+  socket_.shutdown(asio::ip::tcp::socket::shutdown_both, ignored);  // wakes a direct reader
+  {
+    std::lock_guard lock(read_mutex_);  // a direct reader never reads a closed (reused) socket
+    read_closed_ = true;
+    socket_.close(ignored);
+  }
   for (auto& in : incoming_) forget_incoming(*in);
   incoming_.clear();
+  incoming_count_.store(0);
   incomplete_bytes_ = 0;
   const Error error(ErrorKind::disconnected, reason);
   for (auto& h : dropped) h(std::make_exception_ptr(error));

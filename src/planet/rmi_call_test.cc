@@ -9,6 +9,8 @@
 #include <asio/use_future.hpp>
 #include <future>
 #include <limits>
+#include <signal.h>
+#include <thread>
 
 #include "child_process.h"
 #include "icars/planet/communicator.h"
@@ -212,6 +214,101 @@ TEST_F(RmiCall, ManyConcurrentAsyncCallsAllComplete) {
   ASSERT_TRUE(planet_test::wait_until([&] { return done.load() == kCalls; }));
   EXPECT_EQ(ok.load(), kCalls);
   EXPECT_EQ(client_.pending_calls(), 0u);
+}
+
+ConnectionStats stats_of(const Peer& peer) {
+  auto c = peer.connection();
+  return c ? c->stats() : ConnectionStats{};
+}
+
+// A synchronous caller reads its own reply when nothing else is arriving: the reply does not
+// pass through the io thread.
+TEST_F(RmiCall, ACallerReadsItsOwnReplyOnAnIdleConnection) {
+  const auto before = stats_of(*peer_);
+  for (int i = 0; i < 200; ++i) ASSERT_EQ(echo().call(Echo::echo_int, i), i);
+  const auto after = stats_of(*peer_);
+  // Nearly all: a heartbeat arriving while a caller waits sends that call the io thread's way.
+  EXPECT_GE(after.messages_read_by_callers - before.messages_read_by_callers, 150u);
+  EXPECT_EQ(after.messages_received - before.messages_received, 200u);
+}
+
+// Callers reading their own replies race the io thread reading everything else on the same
+// connection (other callers' replies, async replies, the server's calls to this client): every
+// message is handled once, in its place, by the right party.
+TEST_F(RmiCall, RepliesReadByCallersAndByTheIoThreadRaceWithoutLossOrMixUp) {
+  auto callback = std::make_shared<Servant>(std::string(Callback::type_id));
+  std::atomic<int> callbacks{0};
+  callback->implement(Callback::notify_me, [&](const std::string& text) {
+    ++callbacks;
+    return "heard " + text;
+  });
+  client_.adapter().add("/me/racer", callback);
+  const auto me = client_.reference<Callback>("/me/racer");
+  const auto before = stats_of(*peer_);
+
+  constexpr int kThreads = 4;
+  constexpr int kCalls = 400;
+  std::atomic<int> wrong{0};
+  std::atomic<int> async_done{0};
+  std::atomic<int> async_ok{0};
+  std::vector<std::thread> callers;
+  for (int t = 0; t < kThreads; ++t) {
+    callers.emplace_back([&, t] {
+      for (int i = 0; i < kCalls; ++i) {
+        const std::string text = std::to_string(t) + ":" + std::to_string(i);
+        if (t == 0 && i % 20 == 0) {  // the server calls this client back during the call
+          if (echo().call(Echo::call_back, me, text) != "heard " + text) ++wrong;
+        } else if (echo().call(Echo::echo_string, text) != text) {
+          ++wrong;
+        }
+        if (t == 1) {  // replies nobody waits for on a thread
+          echo().async_call(Echo::echo_int, {i}, [&, i](std::exception_ptr e, std::int32_t v) {
+            if (!e && v == i) ++async_ok;
+            ++async_done;
+          });
+        }
+      }
+    });
+  }
+  for (auto& c : callers) c.join();
+  ASSERT_TRUE(planet_test::wait_until([&] { return async_done.load() == kCalls; }));
+  EXPECT_EQ(wrong.load(), 0);
+  EXPECT_EQ(async_ok.load(), kCalls);
+  EXPECT_EQ(callbacks.load(), kCalls / 20);
+  EXPECT_EQ(client_.pending_calls(), 0u);
+  const auto after = stats_of(*peer_);
+  const auto by_callers = after.messages_read_by_callers - before.messages_read_by_callers;
+  const auto received = after.messages_received - before.messages_received;
+  // Both paths ran: callers read some replies, the io thread the rest (and every callback).
+  EXPECT_GT(by_callers, 0u);
+  EXPECT_GT(received, by_callers);
+  EXPECT_EQ(received, static_cast<std::uint64_t>(kThreads * kCalls + kCalls + kCalls / 20));
+  client_.adapter().remove("/me/racer");
+}
+
+// A caller reading its own reply learns at once that its server died: the end of the stream
+// wakes it, and the io thread fails the call, long before its reply or deadline would come.
+TEST(RmiCallDirectRead, AServerThatDiesWhileTheCallerWaitsFailsTheCallAtOnce) {
+  auto server = planet_test::start_test_server();
+  Communicator client;
+  auto peer = client.connect("127.0.0.1", server.port);
+  ASSERT_TRUE(peer->wait_connected(20s)) << peer->last_error();
+  Proxy echo = Proxy(client, peer, "/echo").with_timeout(60s);
+  ASSERT_EQ(echo.call(Echo::echo_int, 1), 1);
+  std::thread killer([&] {
+    // Once the call below is waiting at the server (it answers after 20 s).
+    planet_test::wait_until([&] { return echo.call(Echo::lingers_started) > 0; }, 20s);
+    server.process->signal(SIGKILL);
+  });
+  const auto start = std::chrono::steady_clock::now();
+  try {
+    echo.call(Echo::linger_once, 20000);
+    ADD_FAILURE() << "the call returned although its server was killed";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::disconnected) << e.what();
+  }
+  killer.join();
+  EXPECT_LT(std::chrono::steady_clock::now() - start, 15s) << "the call waited for its deadline";
 }
 
 TEST_F(RmiCall, OneWayNotificationsArriveInOrderOfSending) {

@@ -131,6 +131,13 @@ class Communicator final : private MessageHandler {
   // Completes a pending call (sent, or waiting for its link) with `error` if it is still
   // pending; false if it already completed. A reply that arrives later is ignored.
   bool cancel_call(std::uint32_t request_id, const Error& error);
+  // A synchronous caller waiting for the reply to `request_id` reads it on its own thread when
+  // the connection of `link` is idle (Connection::read_directly), so the reply does not pass
+  // through the io thread; returns at once when it cannot, as soon as anything else arrives,
+  // when `answered()` turns true or at `until`. The call completes as usual either way (its
+  // completion runs on this thread when the reply was read here).
+  void read_reply(const Link& link, std::uint32_t request_id,
+                  std::chrono::steady_clock::time_point until, const std::function<bool()>& answered);
   // Sends a NOTIFY; throws Error(disconnected/overloaded) when it cannot be queued.
   void send_oneway(const Link& link, std::vector<std::byte> request);
   std::size_t pending_calls() const;  // sent and awaiting replies, or waiting for their link

@@ -162,6 +162,7 @@ struct ConnectionStats {
   std::uint64_t bytes_sent = 0;
   std::uint64_t bytes_received = 0;
   std::uint64_t messages_dropped = 0;  // queued messages discarded when the link closed
+  std::uint64_t messages_read_by_callers = 0;  // replies read by their caller (read_directly)
 };
 
 class Connection final : public Link, public std::enable_shared_from_this<Connection> {
@@ -218,13 +219,31 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   std::shared_ptr<Connection> connection() const override;
   std::string describe() const override;
 
+  // A synchronous caller reads its own reply: waits on this thread for what the peer sends next
+  // and reads it here instead of on the io thread, so the reply reaches the waiting thread
+  // without passing through another one. Only while no one else reads this connection (no
+  // bytes or incomplete messages waiting for the io thread), in plaintext and without
+  // lock-step; false at once otherwise. The first message read, if it came whole in one frame,
+  // is offered to `take` (on this thread); anything else read (another message, a control
+  // frame, part of a frame, the end of the stream) is left to the io thread, in order. Returns
+  // true when `take` accepted a message; false when something else came first, `answered()`
+  // turned true (the io thread completed the call) or `until` passed.
+  bool read_directly(std::chrono::steady_clock::time_point until,
+                     const std::function<bool()>& answered,
+                     const std::function<bool(std::span<const std::byte>)>& take);
+
  private:
   enum class State : std::uint8_t { handshaking, open, closed };
   struct Tls;
 
   void begin_handshake();
   void read_more();
+  void on_readable(const std::error_code& ec);  // plaintext: the peer sent bytes
+  void read_available();                        // read_mutex_ held
+  void resume_reading();                        // after a direct reader gave the socket back
   void on_read(const std::error_code& ec, std::size_t n);
+  void handle_buffered(bool read_next = true);  // the whole frames in rbuf_, then read_more()
+  void note_received(std::size_t n);
   bool handle_frame(const FrameHeader& h, std::span<const std::byte> payload);
   bool handle_connect(const FrameHeader& h, std::span<const std::byte> payload);
   bool handle_connect_ack(std::span<const std::byte> payload);
@@ -282,7 +301,16 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   bool close_after_flush_ = false;
   bool was_open_ = false;
 
-  // Receive side (io thread only).
+  // Receive side: the io thread's, except that a direct reader (read_directly) may read into
+  // rbuf_ while it holds the socket. rbuf_, rbegin_, rend_ and the reading of the socket are
+  // guarded by read_mutex_ (held by the io thread while it handles what it read).
+  std::recursive_mutex read_mutex_;
+  bool direct_reader_ = false;  // a caller thread reads the socket (read_mutex_)
+  bool io_parked_ = false;      // the io thread found it reading and waits to resume (read_mutex_)
+  bool read_closed_ = false;    // the socket is closed: nothing may read it (read_mutex_)
+  bool peek_armed_ = false;     // io thread: waiting for the socket to become readable
+  std::byte peek_byte_{};
+  std::atomic<std::size_t> incoming_count_{0};  // incoming_.size(), for direct readers
   std::unique_ptr<std::byte[]> rbuf_;  // kReadBufferSize bytes
   std::size_t rbegin_ = 0;
   std::size_t rend_ = 0;

@@ -23,6 +23,7 @@
 #include <asio/associated_executor.hpp>
 #include <asio/executor_work_guard.hpp>
 #include <asio/post.hpp>
+#include <atomic>
 #include <chrono>
 #include <exception>
 #include <memory>
@@ -153,6 +154,7 @@ class Proxy {
     }
     struct State {
       std::binary_semaphore done{0};
+      std::atomic<bool> answered{false};
       std::exception_ptr error;
       std::conditional_t<std::is_void_v<R>, char, R> value{};
     } state;
@@ -174,9 +176,15 @@ class Proxy {
           }
           if (observed) observed->finished(e);
           state.error = e;
+          state.answered.store(true);
           state.done.release();
         });
     if (observed) observed->started(id);
+    // The reply is read on this thread when nothing else is arriving (one thread hop less).
+    if (id != 0) {
+      communicator_->read_reply(*link_, id, std::chrono::steady_clock::now() + timeout_,
+                                [&state] { return state.answered.load(); });
+    }
     // The deadline sweep fails the call at its deadline; the extra second only guards
     // against a stalled io thread.
     if (!state.done.try_acquire_for(timeout_ + std::chrono::seconds(1))) {
