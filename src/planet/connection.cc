@@ -622,6 +622,10 @@ bool Connection::read_directly(std::chrono::steady_clock::time_point until,
         close_after_flush_ || rbegin_ != rend_ || incoming_count_.load() != 0 || answered()) {
       return false;
     }
+    // Large messages on their way out wait for the peer's acks: those are read by the io
+    // thread, which writes on as soon as they come.
+    std::lock_guard send_lock(send_mutex_);
+    if (!scheduler_->empty()) return false;
     direct_reader_ = true;
   }
   bool taken = false;

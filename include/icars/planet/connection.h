@@ -222,8 +222,8 @@ class Connection final : public Link, public std::enable_shared_from_this<Connec
   // A synchronous caller reads its own reply: waits on this thread for what the peer sends next
   // and reads it here instead of on the io thread, so the reply reaches the waiting thread
   // without passing through another one. Only while no one else reads this connection (no
-  // bytes or incomplete messages waiting for the io thread), in plaintext and without
-  // lock-step; false at once otherwise. The first message read, if it came whole in one frame,
+  // bytes or incomplete messages waiting for the io thread) and no message on its way out
+  // waits for the peer's acks, in plaintext and without lock-step; false at once otherwise. The first message read, if it came whole in one frame,
   // is offered to `take` (on this thread); anything else read (another message, a control
   // frame, part of a frame, the end of the stream) is left to the io thread, in order. Returns
   // true when `take` accepted a message; false when something else came first, `answered()`
