@@ -419,7 +419,11 @@ void Connection::write_batch() {
   auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
     self->on_written(ec, n);
   };
-  if (tls_) {
+  if (tls_ && batch_.size() == 1) {  // one buffer (a control frame, the rest of a frame): as it is
+    asio::async_write(tls_->stream, batch_.front(), std::move(on_done));
+  } else if (tls_) {
+    // Gathered into one buffer: an SSL stream writes one record per buffer of a sequence, and
+    // a record per 9-byte header would cost more than this copy.
     tls_->out.resize(asio::buffer_size(batch_));
     asio::buffer_copy(asio::buffer(tls_->out), batch_);
     asio::async_write(tls_->stream, asio::buffer(tls_->out), std::move(on_done));
