@@ -36,10 +36,12 @@ packages=(
 # npm comes with some builds of nodejs and is a package of its own in Debian's.
 command -v npm >/dev/null || packages+=(npm)
 
-# `--peers`: also the systems bench/compare.sh measures PLANET against, and gnuplot for its plot.
+# `--peers`: also the systems bench/compare.sh measures PLANET against (gRPC, ZeroC Ice, Cap'n
+# Proto), and gnuplot for its plot.
 if [ "${1:-}" = "--peers" ]; then
   packages+=(libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
-             libzeroc-ice-dev zeroc-ice-compilers zeroc-ice-slice gnuplot-nox)
+             libzeroc-ice-dev zeroc-ice-compilers zeroc-ice-slice libcapnp-dev capnproto
+             gnuplot-nox)
 fi
 
 missing=()

@@ -1,14 +1,20 @@
-// icars-compare: the same workloads over raw TCP, PLANET, gRPC and ZeroC Ice, client and server
-// in separate processes on loopback, repeated; prints the medians and the ratios to raw TCP and
-// to PLANET, and writes them as JSON, CSV and a PNG plot (gnuplot). docs/performance.md
+// icars-compare: the same workloads over raw TCP, PLANET, gRPC, ZeroC Ice and Cap'n Proto, client
+// and server in separate processes on loopback, repeated; prints the medians and the ratios to
+// raw TCP and to PLANET, and writes them as JSON, CSV and PNG plots (gnuplot). docs/performance.md
 // explains every workload and the results.
 //
-//   icars-compare run [--systems raw-tcp,planet,grpc,ice] [--reps 5] [--out DIR] [--quick]
-//   icars-compare serve --system S --port P       (started by `run`)
-//   icars-compare client --system S --port P --workloads small,pipeline,...   (started by `run`)
+//   icars-compare run [--systems raw-tcp,planet,grpc,ice,capnp] [--reps 5] [--out DIR] [--quick]
+//                     [--scaling connections,memory,fanout|all|none] [--scaling-only]
+//   icars-compare plot --from DIR/compare.json --out DIR   (the table and plots of a saved run)
+//   icars-compare serve --system S --port P [--certs DIR]   (started by `run`)
+//   icars-compare client --system S --port P --workloads small,pipeline,... [--certs DIR]
+//   The TLS variants (planet-tls, grpc-tls, ice-tls) run the small call and the upload only,
+//   with certificates that `run` makes for them (tls_variants.h).
 #include <arpa/inet.h>
 #include <netinet/in.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -28,7 +34,12 @@
 #include <thread>
 
 #include "child_process.h"
+#include "percentile.h"
+#include "plots.h"
+#include "report.h"
+#include "scaling.h"
 #include "system.h"
+#include "tls_variants.h"
 
 namespace icars::bench {
 namespace {
@@ -48,17 +59,38 @@ std::vector<std::string> available_systems() {
 #ifdef ICARS_BENCH_WITH_ICE
   names.emplace_back("ice");
 #endif
+#ifdef ICARS_BENCH_WITH_CAPNP
+  names.emplace_back("capnp");  // no TLS variant
+#endif
+  names.emplace_back("planet-tls");  // after the plaintext systems: their columns come first
+#ifdef ICARS_BENCH_WITH_GRPC
+  names.emplace_back("grpc-tls");
+#endif
+#ifdef ICARS_BENCH_WITH_ICE
+  names.emplace_back("ice-tls");
+#endif
   return names;
 }
 
-std::unique_ptr<System> make_system(const std::string& name) {
+// A TLS variant needs `tls`, the certificates (--certs).
+std::unique_ptr<System> make_system(const std::string& name, const std::optional<TlsFiles>& tls) {
+  const auto certificates = [&] {
+    if (!tls) throw std::invalid_argument("system '" + name + "' needs certificates: --certs DIR");
+    return tls;
+  };
   if (name == "raw-tcp") return make_raw_tcp();
   if (name == "planet") return make_planet();
+  if (name == "planet-tls") return make_planet(certificates());
 #ifdef ICARS_BENCH_WITH_GRPC
   if (name == "grpc") return make_grpc();
+  if (name == "grpc-tls") return make_grpc(certificates());
 #endif
 #ifdef ICARS_BENCH_WITH_ICE
   if (name == "ice") return make_ice();
+  if (name == "ice-tls") return make_ice(certificates());
+#endif
+#ifdef ICARS_BENCH_WITH_CAPNP
+  if (name == "capnp") return make_capnp();
 #endif
   throw std::invalid_argument("system '" + name + "' is not built into this icars-compare");
 }
@@ -71,15 +103,6 @@ std::int64_t now_ns() {
 double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
-
-double percentile(std::vector<double> values, double p) {
-  if (values.empty()) return std::nan("");
-  std::sort(values.begin(), values.end());
-  const auto rank = static_cast<std::size_t>(std::ceil(p * static_cast<double>(values.size())));
-  return values[std::min(values.size() - 1, rank == 0 ? 0 : rank - 1)];
-}
-
-double median(std::vector<double> values) { return percentile(std::move(values), 0.5); }
 
 Bytes pattern(std::size_t size) {
   Bytes data(size);
@@ -173,6 +196,7 @@ void uploads(Client& client, const Sizes& sizes) {
 // multiplexing: there the echo runs alone.
 void head_of_line(System& system, Client& client, const Sizes& sizes) {
   const Bytes big = pattern(sizes.hol_echo);
+  client.prepare(big);
   std::atomic<bool> echoing{false};
   std::atomic<bool> done{false};
   std::vector<double> us;
@@ -245,36 +269,99 @@ void reconnect(Client& client) {
   emit({{"workload", "reconnect"}, {"down_ns", down}, {"up_ns", now_ns()}});
 }
 
+// --- The scaling workloads (scaling.h): one point per client process ------------------------
+
+void connections_point(System& system, std::uint16_t port, int connections, bool quick,
+                       Opened& opened) {
+  const auto r = drive_connections(system, port, connections, quick ? 300ms : 2000ms, opened);
+  emit({{"workload", "connections"},
+        {fmt::format("conn{}_threads", connections), r.threads},
+        {fmt::format("conn{}_calls", connections), r.calls},
+        {connections_calls_key(connections), r.calls_per_second},
+        {connections_p99_key(connections), r.p99_us}});
+}
+
+void idle_memory_point(System& system, std::uint16_t port, pid_t server, Opened& opened) {
+  if (server <= 0) throw std::invalid_argument("idle-memory needs --server-pid");
+  const auto r = measure_idle_memory(system, port, server, kIdleConnections, opened);
+  emit({{"workload", "idle-memory"},
+        {"server_rss_fresh_kib", r.fresh_kib},
+        {"server_rss_one_kib", r.one_kib},
+        {"server_rss_idle_kib", r.idle_kib},
+        {"idle_connections", r.idle},
+        {kIdleConnectionKey, r.per_connection_kib()}});
+}
+
+void fan_out_point(System& system, std::uint16_t port, int subscribers, bool quick,
+                   Opened& opened) {
+  const std::int64_t deliveries = quick ? 20000 : 200000;
+  emit({{"workload", "fanout-scaling"},
+        {fan_out_key(subscribers), fan_out_to(system, port, subscribers, deliveries, 60s, opened)}});
+}
+
+// What the driver tells a client process besides its workloads.
+struct ClientSettings {
+  bool quick = false;
+  int connections = 0;  // of the "connections" point
+  int subscribers = 0;  // of the "fanout-scaling" point
+  pid_t server = 0;     // the server process, whose memory "idle-memory" reads
+  // The certificates of a TLS variant.
+  std::optional<TlsFiles> tls;
+};
+
+// Prints one JSON line per workload; a workload that fails prints {"workload", "error"} and
+// ends the process.
 int run_client(const std::string& system_name, std::uint16_t port,
-               const std::vector<std::string>& workloads, bool quick) {
-  const Sizes sizes = quick ? Sizes::quick() : Sizes{};
-  auto system = make_system(system_name);
-  auto client = system->connect("127.0.0.1", port);
-  for (const auto& w : workloads) {
-    if (w == "small") {
-      small_calls(*client, sizes);
-    } else if (w == "pipeline") {
-      pipelined(*system, port, 1, sizes);
-    } else if (w == "pipeline8") {
-      pipelined(*system, port, 8, sizes);
-    } else if (w == "upload") {
-      uploads(*client, sizes);
-    } else if (w == "hol") {
-      head_of_line(*system, *client, sizes);
-    } else if (w == "fanout") {
-      fan_out(*system, port, sizes);
-    } else if (w == "reconnect") {
-      reconnect(*client);
-    } else {
-      throw std::invalid_argument("unknown workload '" + w + "'");
+               const std::vector<std::string>& workloads, const ClientSettings& settings) {
+  const Sizes sizes = settings.quick ? Sizes::quick() : Sizes{};
+  auto system = make_system(system_name, settings.tls);
+  // The connection the basic workloads share, made at the first that needs it: a scaling point
+  // opens exactly the connections it counts.
+  std::unique_ptr<Client> shared;
+  const auto client = [&]() -> Client& {
+    if (!shared) shared = system->connect("127.0.0.1", port);
+    return *shared;
+  };
+  Opened opened;  // never closed: the process ends with std::_Exit
+  std::string current;
+  try {
+    for (const auto& w : workloads) {
+      current = w;
+      if (w == "small") {
+        small_calls(client(), sizes);
+      } else if (w == "pipeline") {
+        pipelined(*system, port, 1, sizes);
+      } else if (w == "pipeline8") {
+        pipelined(*system, port, 8, sizes);
+      } else if (w == "upload") {
+        uploads(client(), sizes);
+      } else if (w == "hol") {
+        head_of_line(*system, client(), sizes);
+      } else if (w == "fanout") {
+        fan_out(*system, port, sizes);
+      } else if (w == "reconnect") {
+        reconnect(client());
+      } else if (w == "connections") {
+        connections_point(*system, port, settings.connections, settings.quick, opened);
+      } else if (w == "idle-memory") {
+        idle_memory_point(*system, port, settings.server, opened);
+      } else if (w == "fanout-scaling") {
+        fan_out_point(*system, port, settings.subscribers, settings.quick, opened);
+      } else {
+        throw std::invalid_argument("unknown workload '" + w + "'");
+      }
     }
+  } catch (const std::exception& e) {
+    emit({{"workload", current}, {"error", e.what()}});
+    std::_Exit(1);
   }
   std::cout.flush();
   std::_Exit(0);  // skip the libraries' teardown: the measurements are out
 }
 
-int run_server(const std::string& system_name, std::uint16_t port) {
-  auto system = make_system(system_name);
+int run_server(const std::string& system_name, std::uint16_t port,
+               const std::optional<TlsFiles>& tls) {
+  auto system = make_system(system_name, tls);
   system->serve(port, [] { std::cout << "ready " << now_ns() << std::endl; });
   return 0;
 }
@@ -295,45 +382,75 @@ std::uint16_t free_tcp_port() {
   return ntohs(addr.sin_port);
 }
 
-// One metric of the table: its unit, and whether larger is better.
-struct Metric {
-  std::string key;
-  std::string label;
-  std::string unit;
-  bool higher_better;
+// The scaling series a run includes (--scaling).
+struct ScalingSeries {
+  bool connections = false;
+  bool memory = false;
+  bool fan_out = false;
 };
 
-const std::vector<Metric>& metrics() {
-  static const std::vector<Metric> all = {
-      {"small_p50_us", "small call p50", "us", false},
-      {"small_p99_us", "small call p99", "us", false},
-      {"pipeline1_calls_s", "pipelined calls, 1 client", "calls/s", true},
-      {"pipeline8_calls_s", "pipelined calls, 8 clients", "calls/s", true},
-      {"upload_1mib_mib_s", "1 MiB upload", "MiB/s", true},
-      {"upload_64mib_mib_s", "64 MiB upload", "MiB/s", true},
-      {"upload_8mib_mib_s", "8 MiB upload", "MiB/s", true},
-      {"hol_echo_ms", "large echo (HOL)", "ms", false},
-      {"hol_small_p50_us", "small call p50 during echo", "us", false},
-      {"hol_small_p99_us", "small call p99 during echo", "us", false},
-      {"hol_small_max_ms", "small call max during echo", "ms", false},
-      {"hol_small_calls", "small calls during echo", "calls", true},
-      {"fanout_deliveries_s", "event fan-out", "deliveries/s", true},
-      {"reconnect_ms", "reconnection", "ms", false},
-  };
-  return all;
+// One point of a scaling series: a fresh server and a client process of its own.
+struct ScalingPoint {
+  std::string what;                    // e.g. "1,000 connections", for messages
+  std::string workload;                // the client's
+  std::vector<std::string> arguments;  // to the client, besides the workload
+  std::vector<std::string> keys;       // the metrics it yields
+};
+
+std::vector<ScalingPoint> scaling_points(const ScalingSeries& series) {
+  std::vector<ScalingPoint> points;
+  if (series.connections) {
+    for (const int n : kConnectionPoints) {
+      points.push_back({fmt::format("{} connections", n), "connections",
+                        {"--connections", std::to_string(n)},
+                        {connections_calls_key(n), connections_p99_key(n)}});
+    }
+  }
+  if (series.memory) {
+    points.push_back({fmt::format("{} idle connections", kIdleConnections), "idle-memory", {},
+                      {kIdleConnectionKey}});
+  }
+  if (series.fan_out) {
+    for (const int n : kSubscriberPoints) {
+      points.push_back({fmt::format("fan-out to {} subscribers", n), "fanout-scaling",
+                        {"--subscribers", std::to_string(n)}, {fan_out_key(n)}});
+    }
+  }
+  return points;
 }
 
-// samples[system][metric] = one value per repetition.
-using Samples = std::map<std::string, std::map<std::string, std::vector<double>>>;
+std::string describe_wait_status(int status) {
+  if (WIFEXITED(status)) return fmt::format("exit code {}", WEXITSTATUS(status));
+  if (WIFSIGNALED(status)) return fmt::format("signal {} ({})", WTERMSIG(status), strsignal(WTERMSIG(status)));
+  return fmt::format("wait status {}", status);
+}
 
 class Driver {
  public:
-  Driver(std::string self, bool quick, std::chrono::seconds timeout)
-      : self_(std::move(self)), quick_(quick), timeout_(timeout) {}
+  Driver(std::string self, bool quick, std::chrono::seconds timeout,
+         std::chrono::seconds point_timeout, std::optional<TlsFiles> tls)
+      : self_(std::move(self)),
+        quick_(quick),
+        timeout_(timeout),
+        point_timeout_(point_timeout),
+        tls_(std::move(tls)) {}
 
-  void repetition(const std::string& system, Samples& samples) {
-    run_workloads(system, samples);
-    run_reconnect(system, samples);
+  // The basic workloads and the reconnection; a TLS variant's own few (tls_workloads()).
+  void basic(const std::string& system, Report& report) {
+    if (is_tls_variant(system)) {
+      run_workloads(system, tls_workloads(), report.samples);
+      return;
+    }
+    run_workloads(system, {"small", "pipeline", "pipeline8", "upload", "hol", "fanout"},
+                  report.samples);
+    run_reconnect(system, report.samples);
+  }
+
+  // Every point of the series; a point that fails or takes longer than the point timeout is
+  // recorded as missing, with the reason, and the next point runs. None for a TLS variant.
+  void scaling(const std::string& system, const ScalingSeries& series, Report& report) {
+    if (is_tls_variant(system)) return;
+    for (const auto& point : scaling_points(series)) run_point(system, point, report);
   }
 
  private:
@@ -344,8 +461,10 @@ class Driver {
 
   Server start_server(const std::string& system, std::uint16_t port) {
     Server s;
-    s.process = std::make_unique<planet_test::ChildProcess>(std::vector<std::string>{
-        self_, "serve", "--system", system, "--port", std::to_string(port)});
+    std::vector<std::string> argv = {self_, "serve", "--system", system, "--port",
+                                     std::to_string(port)};
+    add_certificates(system, argv);
+    s.process = std::make_unique<planet_test::ChildProcess>(argv);
     const auto line = s.process->read_line(30s);
     if (!line || line->rfind("ready ", 0) != 0) {
       throw std::runtime_error(system + " server did not start");
@@ -354,19 +473,30 @@ class Driver {
     return s;
   }
 
-  std::unique_ptr<planet_test::ChildProcess> start_client(const std::string& system,
-                                                          std::uint16_t port,
-                                                          const std::string& workloads) {
+  std::unique_ptr<planet_test::ChildProcess> start_client(
+      const std::string& system, std::uint16_t port, const std::string& workloads,
+      const std::vector<std::string>& extra = {}) {
     std::vector<std::string> argv = {self_, "client", "--system", system, "--port",
                                      std::to_string(port), "--workloads", workloads};
+    argv.insert(argv.end(), extra.begin(), extra.end());
     if (quick_) argv.emplace_back("--quick");
+    add_certificates(system, argv);
     return std::make_unique<planet_test::ChildProcess>(argv);
+  }
+
+  void add_certificates(const std::string& system, std::vector<std::string>& argv) const {
+    if (is_tls_variant(system) && tls_) argv.insert(argv.end(), {"--certs", tls_->dir.string()});
   }
 
   json next_result(planet_test::ChildProcess& client, const std::string& system) {
     const auto line = client.read_line(timeout_);
     if (!line) throw std::runtime_error(system + " client stopped or timed out");
-    return json::parse(*line);
+    json result = json::parse(*line);
+    if (result.contains("error")) {
+      throw std::runtime_error(fmt::format("{} {}: {}", system, result.value("workload", ""),
+                                           result["error"].get<std::string>()));
+    }
+    return result;
   }
 
   static void record(const json& result, const std::string& system, Samples& samples) {
@@ -375,11 +505,14 @@ class Driver {
     }
   }
 
-  void run_workloads(const std::string& system, Samples& samples) {
+  void run_workloads(const std::string& system, const std::vector<std::string>& workloads,
+                     Samples& samples) {
     const std::uint16_t port = free_tcp_port();
     Server server = start_server(system, port);
-    auto client = start_client(system, port, "small,pipeline,pipeline8,upload,hol,fanout");
-    for (int i = 0; i < 6; ++i) {
+    std::string list;
+    for (const auto& w : workloads) list += (list.empty() ? "" : ",") + w;
+    auto client = start_client(system, port, list);
+    for (std::size_t i = 0; i < workloads.size(); ++i) {
       const json result = next_result(*client, system);
       std::cerr << fmt::format("  {:8} {}\n", system, result.dump());
       record(result, system, samples);
@@ -401,169 +534,122 @@ class Driver {
     samples[system]["reconnect_ms"].push_back(ms);
   }
 
+  void run_point(const std::string& system, const ScalingPoint& point, Report& report) {
+    try {
+      const std::uint16_t port = free_tcp_port();
+      Server server = start_server(system, port);
+      std::vector<std::string> arguments = point.arguments;
+      arguments.insert(arguments.end(),
+                       {"--server-pid", std::to_string(server.process->pid())});
+      auto client = start_client(system, port, point.workload, arguments);
+      const auto line = client->read_line(point_timeout_);
+      if (!line) {
+        const auto status = client->wait_for(0ms);
+        throw std::runtime_error(
+            status ? "the client ended without a result: " + describe_wait_status(*status)
+                   : fmt::format("no result within {} s (--point-timeout)",
+                                 point_timeout_.count()));
+      }
+      const json result = json::parse(*line);
+      if (result.contains("error")) throw std::runtime_error(result["error"].get<std::string>());
+      std::cerr << fmt::format("  {:8} {}\n", system, result.dump());
+      record(result, system, report.samples);
+    } catch (const std::exception& e) {
+      std::cerr << fmt::format("  {:8} {}: not measured: {}\n", system, point.what, e.what());
+      for (const auto& key : point.keys) report.record_missing(system, key, e.what());
+    }
+  }
+
   std::string self_;
   bool quick_;
   std::chrono::seconds timeout_;
+  std::chrono::seconds point_timeout_;
+  std::optional<TlsFiles> tls_;  // the certificates of the TLS variants
 };
 
-std::string format_value(double v) {
-  if (std::isnan(v)) return "-";
-  if (v >= 1e6) return fmt::format("{:.2f}M", v / 1e6);
-  if (v >= 1e4) return fmt::format("{:.0f}k", v / 1e3);
-  if (v >= 100) return fmt::format("{:.0f}", v);
-  if (v >= 10) return fmt::format("{:.1f}", v);
-  return fmt::format("{:.2f}", v);
+// Writes compare.{json,csv} and the plots into `out_dir` and says what it wrote.
+void write_results(const Report& report, const fs::path& out_dir) {
+  fs::create_directories(out_dir);
+  std::ofstream(out_dir / "compare.json") << report.to_json().dump(2) << "\n";
+  report.write_csv(out_dir / "compare.csv");
+  std::string files = "compare.json, compare.csv";
+  std::string failed;
+  const auto draw = [&](bool (*plot)(const Report&, const fs::path&), const std::string& name) {
+    const fs::path png = fs::absolute(out_dir / name);
+    fs::remove(png);  // a plot of an earlier run must not pass for this one's
+    if (!plot(report, png)) {
+      failed += " " + name;
+    } else if (fs::exists(png)) {
+      files += ", " + name;
+    }
+  };
+  draw(plot_advantage, "compare.png");
+  draw(plot_connections, "scaling_connections.png");
+  draw(plot_fan_out, "scaling_fanout.png");
+  std::cout << fmt::format("\nresults: {}/{{{}}}{}\n", out_dir.string(), files,
+                           failed.empty() ? "" : " (not plotted, gnuplot failed or missing:" +
+                                                     failed + ")");
 }
 
-struct Report {
+struct RunSettings {
   std::vector<std::string> systems;
-  Samples samples;
-
-  double med(const std::string& system, const std::string& key) const {
-    const auto s = samples.find(system);
-    if (s == samples.end()) return std::nan("");
-    const auto m = s->second.find(key);
-    return m == s->second.end() ? std::nan("") : median(m->second);
-  }
-
-  bool has(const std::string& key) const {
-    return std::any_of(systems.begin(), systems.end(),
-                       [&](const auto& s) { return !std::isnan(med(s, key)); });
-  }
-
-  void print(std::ostream& out, int reps) const {
-    out << fmt::format("\nMedians of {} repetitions (client and server in separate processes on "
-                       "loopback). Ratios: x/raw = system / raw TCP, x/planet = system / PLANET.\n\n",
-                       reps);
-    std::string head = fmt::format("{:30} {:>13}", "workload", "unit");
-    for (const auto& s : systems) head += fmt::format(" {:>9}", s);
-    for (const auto& s : systems) {
-      if (s != "raw-tcp") head += fmt::format(" {:>11}", s + "/raw");
-    }
-    for (const auto& s : systems) {
-      if (s != "raw-tcp" && s != "planet") head += fmt::format(" {:>12}", s + "/planet");
-    }
-    out << head << "\n" << std::string(head.size(), '-') << "\n";
-    for (const auto& m : metrics()) {
-      if (!has(m.key)) continue;
-      std::string row = fmt::format("{:30} {:>13}", m.label, m.unit);
-      for (const auto& s : systems) row += fmt::format(" {:>9}", format_value(med(s, m.key)));
-      const double raw = med("raw-tcp", m.key);
-      const double planet = med("planet", m.key);
-      for (const auto& s : systems) {
-        if (s != "raw-tcp") row += fmt::format(" {:>11}", format_value(med(s, m.key) / raw));
-      }
-      for (const auto& s : systems) {
-        if (s != "raw-tcp" && s != "planet") {
-          row += fmt::format(" {:>12}", format_value(med(s, m.key) / planet));
-        }
-      }
-      out << row << "\n";
-    }
-    out << "\n(higher is better for calls/s, MiB/s, deliveries/s and calls; lower for the rest)\n";
-  }
-
-  json to_json(int reps) const {
-    json rows = json::array();
-    for (const auto& m : metrics()) {
-      for (const auto& s : systems) {
-        const auto sys = samples.find(s);
-        if (sys == samples.end() || !sys->second.contains(m.key)) continue;
-        const auto& values = sys->second.at(m.key);
-        rows.push_back({{"workload", m.key},
-                        {"label", m.label},
-                        {"unit", m.unit},
-                        {"higher_is_better", m.higher_better},
-                        {"system", s},
-                        {"median", median(values)},
-                        {"min", *std::min_element(values.begin(), values.end())},
-                        {"max", *std::max_element(values.begin(), values.end())},
-                        {"runs", values},
-                        {"ratio_to_raw_tcp", med(s, m.key) / med("raw-tcp", m.key)},
-                        {"ratio_to_planet", med(s, m.key) / med("planet", m.key)}});
-      }
-    }
-    return {{"repetitions", reps}, {"systems", systems}, {"rows", rows}};
-  }
-
-  void write_csv(const fs::path& file) const {
-    std::ofstream out(file);
-    out << "workload,unit,system,median,min,max,ratio_to_raw_tcp,ratio_to_planet\n";
-    for (const auto& m : metrics()) {
-      for (const auto& s : systems) {
-        const auto sys = samples.find(s);
-        if (sys == samples.end() || !sys->second.contains(m.key)) continue;
-        const auto& v = sys->second.at(m.key);
-        out << fmt::format("{},{},{},{},{},{},{},{}\n", m.key, m.unit, s, median(v),
-                           *std::min_element(v.begin(), v.end()),
-                           *std::max_element(v.begin(), v.end()),
-                           med(s, m.key) / med("raw-tcp", m.key),
-                           med(s, m.key) / med("planet", m.key));
-      }
-    }
-  }
-
-  // A clustered bar chart of every system's median relative to PLANET, on a log scale, each
-  // workload labelled with the direction that is better.
-  bool plot(const fs::path& png) const {
-    const fs::path data = fs::path(png).replace_extension(".dat");
-    const fs::path script = fs::path(png).replace_extension(".gp");
-    {
-      std::ofstream out(data);
-      out << "# workload";
-      for (const auto& s : systems) out << " " << s;
-      out << "\n";
-      for (const auto& m : metrics()) {
-        if (!has(m.key) || m.key == "hol_small_calls") continue;
-        out << '"' << m.label << (m.higher_better ? " (higher better)" : " (lower better)") << '"';
-        for (const auto& s : systems) {
-          const double r = med(s, m.key) / med("planet", m.key);
-          out << " " << (std::isnan(r) || r <= 0 ? std::string("NaN") : fmt::format("{:.4f}", r));
-        }
-        out << "\n";
-      }
-    }
-    {
-      std::ofstream out(script);
-      out << "set terminal pngcairo size 1400,700 font 'sans,10'\n"
-          << "set output '" << png.string() << "'\n"
-          << "set title 'icars-compare: each system relative to PLANET (= 1), medians'\n"
-          << "set style data histograms\nset style histogram clustered gap 1\n"
-          << "set style fill solid 0.85 border -1\nset boxwidth 0.9\n"
-          << "set logscale y 10\nset grid ytics\nset ylabel 'system / PLANET (log scale)'\n"
-          << "set xtics rotate by -35 left noenhanced\nset key top left\n"
-          << "set bmargin 13\nset rmargin 16\n";
-      out << "plot ";
-      for (std::size_t i = 0; i < systems.size(); ++i) {
-        out << (i ? ", " : "") << "'" << data.string() << "' using " << i + 2
-            << (i == 0 ? ":xtic(1)" : "") << " title '" << systems[i] << "'";
-      }
-      out << "\n";
-    }
-    const std::string command = fmt::format("gnuplot '{}' 2>&1", script.string());
-    return std::system(command.c_str()) == 0;
-  }
+  int reps = 5;
+  fs::path out_dir = "bench-results";
+  bool quick = false;
+  int timeout_s = 600;
+  int point_timeout_s = 120;
+  bool basic = true;  // the workloads before the scaling series
+  ScalingSeries scaling;
 };
 
-int run_driver(std::vector<std::string> systems, int reps, const fs::path& out_dir, bool quick,
-               int timeout_s) {
+int run_driver(RunSettings settings) {
+  auto& systems = settings.systems;
   if (systems.empty()) systems = available_systems();
-  for (const auto& s : systems) make_system(s);  // rejects a system not built in
+  // The TLS variants' certificates, made for this run and removed after it.
+  std::optional<RunCertificates> certificates;
+  if (std::any_of(systems.begin(), systems.end(), is_tls_variant)) certificates.emplace();
+  const auto tls = certificates ? std::optional(certificates->files()) : std::nullopt;
+  for (const auto& s : systems) make_system(s, tls);  // rejects a system not built in
   const std::string self = fs::read_symlink("/proc/self/exe").string();
-  Driver driver(self, quick, std::chrono::seconds(timeout_s));
-  Report report{systems, {}};
-  for (int r = 1; r <= reps; ++r) {
-    std::cerr << fmt::format("repetition {}/{}\n", r, reps);
-    for (const auto& s : systems) driver.repetition(s, report.samples);
+  Driver driver(self, settings.quick, std::chrono::seconds(settings.timeout_s),
+                std::chrono::seconds(settings.point_timeout_s), tls);
+  Report report;
+  report.systems = systems;
+  report.repetitions = settings.reps;
+  for (int r = 1; r <= settings.reps; ++r) {
+    std::cerr << fmt::format("repetition {}/{}\n", r, settings.reps);
+    for (const auto& s : systems) {
+      if (settings.basic) driver.basic(s, report);
+      driver.scaling(s, settings.scaling, report);
+    }
   }
-  report.print(std::cout, reps);
-  fs::create_directories(out_dir);
-  std::ofstream(out_dir / "compare.json") << report.to_json(reps).dump(2) << "\n";
-  report.write_csv(out_dir / "compare.csv");
-  const bool plotted = report.plot(fs::absolute(out_dir / "compare.png"));
-  std::cout << fmt::format("\nresults: {}/compare.json, compare.csv{}\n", out_dir.string(),
-                           plotted ? ", compare.png" : " (no plot: gnuplot failed or missing)");
+  report.print(std::cout);
+  print_tls_cost(report, std::cout);
+  write_results(report, settings.out_dir);
   return 0;
+}
+
+// The table and plots of a saved run (its compare.json), e.g. after the plots changed.
+int run_plot(const fs::path& from, const fs::path& out_dir) {
+  std::ifstream in(from);
+  if (!in) throw std::runtime_error("cannot read " + from.string());
+  const Report report = Report::from_json(json::parse(in));
+  report.print(std::cout);
+  print_tls_cost(report, std::cout);
+  write_results(report, out_dir);
+  return 0;
+}
+
+// Thousands of connections need thousands of descriptors: the soft limit goes up to the hard one
+// (the children inherit it; each process raises its own as well).
+void raise_descriptor_limit() {
+  rlimit limit{};
+  if (::getrlimit(RLIMIT_NOFILE, &limit) != 0 || limit.rlim_cur == limit.rlim_max) return;
+  limit.rlim_cur = limit.rlim_max;
+  if (::setrlimit(RLIMIT_NOFILE, &limit) != 0) {
+    std::cerr << "icars-compare: cannot raise the descriptor limit (RLIMIT_NOFILE) to "
+              << limit.rlim_max << "; points with many connections may be missing\n";
+  }
 }
 
 }  // namespace
@@ -572,39 +658,78 @@ int run_driver(std::vector<std::string> systems, int reps, const fs::path& out_d
 int main(int argc, char** argv) {
   using namespace icars::bench;
   std::signal(SIGPIPE, SIG_IGN);
+  raise_descriptor_limit();
   CLI::App app{"icars-compare: PLANET, raw TCP, gRPC and ZeroC Ice side by side"};
   app.require_subcommand(1);
 
-  std::vector<std::string> systems;
-  int reps = 5;
-  std::string out_dir = "bench-results";
-  bool quick = false;
-  int timeout_s = 600;
+  RunSettings settings;
+  std::string out_dir = settings.out_dir.string();
+  std::vector<std::string> scaling;
+  bool scaling_only = false;
   auto* run = app.add_subcommand("run", "run every workload over every system, repeated");
-  run->add_option("--systems", systems, "systems to compare (default: every one built in)")
+  run->add_option("--systems", settings.systems,
+                  "systems to compare (default: every one built in)")
       ->delimiter(',');
-  run->add_option("--reps", reps, "repetitions (medians are reported)")->check(CLI::Range(1, 100));
-  run->add_option("--out", out_dir, "directory for compare.json, compare.csv, compare.png");
-  run->add_flag("--quick", quick, "small sizes (a smoke run, not a measurement)");
-  run->add_option("--timeout", timeout_s, "seconds a client may take for one workload");
+  run->add_option("--reps", settings.reps, "repetitions (medians are reported)")
+      ->check(CLI::Range(1, 100));
+  run->add_option("--out", out_dir, "directory for compare.json, compare.csv and the plots");
+  run->add_flag("--quick", settings.quick, "small sizes (a smoke run, not a measurement)");
+  run->add_option("--timeout", settings.timeout_s, "seconds a client may take for one workload");
+  run->add_option("--scaling", scaling,
+                  "scaling series: connections, memory, fanout, all or none (default: all; "
+                  "none with --quick)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"connections", "memory", "fanout", "all", "none"}));
+  run->add_flag("--scaling-only", scaling_only,
+                "run only the scaling series, not the other workloads");
+  run->add_option("--point-timeout", settings.point_timeout_s,
+                  "seconds one scaling point may take before it is reported missing")
+      ->check(CLI::Range(1, 3600));
+
+  std::string from;
+  auto* plot = app.add_subcommand("plot", "print the table and draw the plots of a saved run");
+  plot->add_option("--from", from, "the run's compare.json")->required();
+  plot->add_option("--out", out_dir, "directory for compare.json, compare.csv and the plots");
 
   std::string system;
   int port = 0;
   std::vector<std::string> workloads;
+  ClientSettings client_settings;
+  std::string certs;
   auto* serve = app.add_subcommand("serve", "serve one system (started by run)");
   serve->add_option("--system", system)->required();
   serve->add_option("--port", port)->required()->check(CLI::Range(1, 65535));
+  serve->add_option("--certs", certs, "a TLS variant's certificates (scripts/make-certs.sh DIR)")
+      ->check(CLI::ExistingDirectory);
   auto* client = app.add_subcommand("client", "run workloads as a client (started by run)");
   client->add_option("--system", system)->required();
   client->add_option("--port", port)->required()->check(CLI::Range(1, 65535));
   client->add_option("--workloads", workloads)->required()->delimiter(',');
-  client->add_flag("--quick", quick);
+  client->add_flag("--quick", client_settings.quick);
+  client->add_option("--connections", client_settings.connections)->check(CLI::Range(1, 100000));
+  client->add_option("--subscribers", client_settings.subscribers)->check(CLI::Range(1, 100000));
+  client->add_option("--server-pid", client_settings.server);
+  client->add_option("--certs", certs, "a TLS variant's certificates (scripts/make-certs.sh DIR)")
+      ->check(CLI::ExistingDirectory);
 
   CLI11_PARSE(app, argc, argv);
   try {
-    if (run->parsed()) return run_driver(systems, reps, out_dir, quick, timeout_s);
-    if (serve->parsed()) return run_server(system, static_cast<std::uint16_t>(port));
-    return run_client(system, static_cast<std::uint16_t>(port), workloads, quick);
+    if (run->parsed()) {
+      settings.out_dir = out_dir;
+      const auto chosen = [&](const char* series) {
+        if (scaling.empty()) return scaling_only || !settings.quick;
+        return std::find(scaling.begin(), scaling.end(), series) != scaling.end() ||
+               std::find(scaling.begin(), scaling.end(), "all") != scaling.end();
+      };
+      settings.scaling = {chosen("connections"), chosen("memory"), chosen("fanout")};
+      settings.basic = !scaling_only;
+      return run_driver(settings);
+    }
+    if (plot->parsed()) return run_plot(from, out_dir);
+    const auto tls = certs.empty() ? std::nullopt : std::optional(TlsFiles{certs});
+    if (serve->parsed()) return run_server(system, static_cast<std::uint16_t>(port), tls);
+    client_settings.tls = tls;
+    return run_client(system, static_cast<std::uint16_t>(port), workloads, client_settings);
   } catch (const std::exception& e) {
     std::cerr << "icars-compare: " << e.what() << "\n";
     return 1;

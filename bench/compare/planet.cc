@@ -1,7 +1,10 @@
 // PLANET, as an ICARS user writes it: an interface of typed operations, a servant, Proxy calls
 // (synchronous and async_call), and events fanned out by a Publisher to listeners passed by
 // reference. The limits are raised for the 256 MiB echo (the defaults refuse messages over
-// 64 MiB and queue at most 128 MiB per connection); everything else is the default.
+// 64 MiB and queue at most 128 MiB per connection) and for the 5,000 subscribers of the fan-out
+// scaling series (the defaults admit 1,024 connections and 1,024 subscribers to a publisher);
+// everything else is the default. "planet-tls" is the same with TLS on every link (options()).
+#include <fmt/format.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -9,6 +12,7 @@
 #include <condition_variable>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <semaphore>
 #include <stdexcept>
 #include <thread>
@@ -37,14 +41,32 @@ struct Bench {
 };
 
 constexpr std::size_t kLargest = 320u << 20;  // room for the 256 MiB echo
+constexpr std::size_t kMostConnections = 8192;  // room for 5,000 subscribers
 
-p::CommunicatorOptions options(const std::string& name) {
+enum class Side { server, client };
+
+// With `tls`, TLS on every link, loopback included (the default mode, automatic, leaves loopback
+// in plaintext): the server presents its certificate, the client checks it against the CA and
+// the host it connects to (TlsFiles).
+p::CommunicatorOptions options(const std::string& name, const std::optional<TlsFiles>& tls,
+                               Side side) {
   p::CommunicatorOptions o;
+  if (tls) {
+    o.tls.mode = p::TlsMode::on;
+    if (side == Side::server) {
+      o.tls.certificate_file = tls->certificate();
+      o.tls.private_key_file = tls->private_key();
+    } else {
+      o.tls.ca_file = tls->ca();
+    }
+  }
   o.connection.max_message_size = kLargest;
   o.connection.send_queue_limit = 2 * kLargest;
   o.connection.receive_budget = 2 * kLargest;
-  // Every client of the benchmark is on 127.0.0.1, and one echo is as large as the budget.
-  o.connection.max_connections_per_address = o.connection.max_connections;
+  // Every client of the benchmark is on 127.0.0.1, up to 5,000 at once (the fan-out scaling
+  // series; the default admits 1,024), and one echo is as large as the budget.
+  o.connection.max_connections = kMostConnections;
+  o.connection.max_connections_per_address = kMostConnections;
   o.connection.total_receive_budget = 4 * kLargest;
   o.call_timeout = 60s;
   o.name = name;
@@ -54,18 +76,10 @@ p::CommunicatorOptions options(const std::string& name) {
   return o;
 }
 
-// One Communicator (one io thread) per client process, as a PLANET application has.
-p::Communicator& client_communicator() {
-  static p::Communicator communicator(options("bench-client"));
-  return communicator;
-}
-
-
 class PlanetClient final : public Client {
  public:
-  PlanetClient(const std::string& host, std::uint16_t port)
-      : peer_(client_communicator().connect(host, port)),
-        bench_(client_communicator(), peer_, "/bench") {
+  PlanetClient(p::Communicator& communicator, const std::string& host, std::uint16_t port)
+      : peer_(communicator.connect(host, port)), bench_(communicator, peer_, "/bench") {
     if (!peer_->wait_connected(10s)) {
       throw std::runtime_error("planet: cannot connect: " + peer_->last_error());
     }
@@ -101,6 +115,8 @@ class PlanetClient final : public Client {
     }
   }
 
+  void prepare(const Bytes& data) override { (void)as_binary(data); }
+
   bool try_call() noexcept override {
     try {
       return bench_.with_timeout(1s).call(Bench::echo_int, 7) == 7;
@@ -128,9 +144,12 @@ class PlanetClient final : public Client {
 // `count` listeners, each a servant reached over its own connection.
 class PlanetSubscribers final : public Subscribers {
  public:
-  PlanetSubscribers(const std::string& host, std::uint16_t port, int count)
-      : publisher_(host, port), counts_(static_cast<std::size_t>(count), 0) {
-    p::Communicator& c = client_communicator();
+  PlanetSubscribers(p::Communicator& communicator, const std::string& host, std::uint16_t port,
+                    int count)
+      : communicator_(communicator),
+        publisher_(communicator, host, port),
+        counts_(static_cast<std::size_t>(count), 0) {
+    p::Communicator& c = communicator_;
     for (int i = 0; i < count; ++i) {
       const std::string path = "/listener/" + std::to_string(next_id_.fetch_add(1));
       auto listener = std::make_shared<p::Servant>(std::string(TickListener::type_id));
@@ -139,14 +158,17 @@ class PlanetSubscribers final : public Subscribers {
       c.adapter().add(path, listener);
       paths_.push_back(path);
       auto peer = c.connect(host, port);
-      if (!peer->wait_connected(10s)) throw std::runtime_error("planet: subscriber cannot connect");
+      if (!peer->wait_connected(10s)) {
+        throw std::runtime_error(fmt::format("planet: subscriber {} of {} cannot connect: {}",
+                                             i + 1, count, peer->last_error()));
+      }
       p::Proxy(c, peer, "/bench").call(Bench::subscribe, c.reference<TickListener>(path));
       peers_.push_back(std::move(peer));
     }
   }
   ~PlanetSubscribers() override {
     for (auto& peer : peers_) peer->stop();
-    for (const auto& path : paths_) client_communicator().adapter().remove(path);
+    for (const auto& path : paths_) communicator_.adapter().remove(path);
   }
 
   void publish_and_wait(int events, std::size_t payload,
@@ -173,9 +195,8 @@ class PlanetSubscribers final : public Subscribers {
   // The publish request goes over a connection of its own.
   class Publisher {
    public:
-    Publisher(const std::string& host, std::uint16_t port)
-        : peer_(client_communicator().connect(host, port)),
-          bench_(client_communicator(), peer_, "/bench") {}
+    Publisher(p::Communicator& communicator, const std::string& host, std::uint16_t port)
+        : peer_(communicator.connect(host, port)), bench_(communicator, peer_, "/bench") {}
     ~Publisher() { peer_->stop(); }
     void call(std::int32_t events, std::int32_t payload) {
       bench_.call(Bench::publish, events, payload);
@@ -187,6 +208,7 @@ class PlanetSubscribers final : public Subscribers {
   };
 
   static inline std::atomic<int> next_id_{0};
+  p::Communicator& communicator_;
   Publisher publisher_;
   std::vector<std::shared_ptr<p::Peer>> peers_;
   std::vector<std::string> paths_;
@@ -199,13 +221,16 @@ class PlanetSubscribers final : public Subscribers {
 
 class Planet final : public System {
  public:
-  std::string name() const override { return "planet"; }
+  explicit Planet(std::optional<TlsFiles> tls) : tls_(std::move(tls)) {}
+
+  std::string name() const override { return tls_ ? "planet-tls" : "planet"; }
 
   void serve(std::uint16_t port, const std::function<void()>& ready) override {
-    p::Communicator communicator(options("bench-server"));
+    p::Communicator communicator(options("bench-server", tls_, Side::server));
     // A fast publisher is expected to outrun its subscribers' sockets for a moment.
     p::Publisher<Tick> ticks(TickListener::on_tick, {.max_backlog_bytes = 256u << 20,
-                                                     .stall_timeout = 60s});
+                                                     .stall_timeout = 60s,
+                                                     .max_subscribers = kMostConnections});
     auto bench = std::make_shared<p::Servant>(std::string(Bench::type_id));
     bench->implement(Bench::echo_int, [](std::int32_t x) { return x; });
     bench->implement(Bench::size_of,
@@ -229,17 +254,33 @@ class Planet final : public System {
   }
 
   std::unique_ptr<Client> connect(const std::string& host, std::uint16_t port) override {
-    return std::make_unique<PlanetClient>(host, port);
+    return std::make_unique<PlanetClient>(client_communicator(), host, port);
   }
 
   std::unique_ptr<Subscribers> subscribe(const std::string& host, std::uint16_t port,
                                          int count) override {
-    return std::make_unique<PlanetSubscribers>(host, port, count);
+    return std::make_unique<PlanetSubscribers>(client_communicator(), host, port, count);
   }
+
+ private:
+  // One Communicator (one io thread) for all the clients and subscribers of a process, as a
+  // PLANET application has; made at the first connection, so a server process has none.
+  p::Communicator& client_communicator() {
+    std::call_once(client_made_, [this] {
+      client_ = std::make_unique<p::Communicator>(options("bench-client", tls_, Side::client));
+    });
+    return *client_;
+  }
+
+  std::optional<TlsFiles> tls_;
+  std::once_flag client_made_;
+  std::unique_ptr<p::Communicator> client_;  // outlives the clients: the System is made first
 };
 
 }  // namespace
 
-std::unique_ptr<System> make_planet() { return std::make_unique<Planet>(); }
+std::unique_ptr<System> make_planet(std::optional<TlsFiles> tls) {
+  return std::make_unique<Planet>(std::move(tls));
+}
 
 }  // namespace icars::bench

@@ -1,5 +1,5 @@
-// The contract every compared system implements (raw TCP, PLANET, gRPC, ZeroC Ice), so that
-// icars-compare runs the same workloads over each of them, client and server in separate
+// The contract every compared system implements (raw TCP, PLANET, gRPC, ZeroC Ice, Cap'n Proto),
+// so that icars-compare runs the same workloads over each of them, client and server in separate
 // processes on loopback. Each system implements it in its own idiom (its IDL, its async API,
 // its event mechanism); what is measured is what a user of that system would write.
 //
@@ -15,8 +15,10 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -39,6 +41,10 @@ class Client {
   // One echo_int attempt that gives up within about a second; true when it was answered. Used
   // after the server restarts: the client keeps calling through the system's own reconnection.
   virtual bool try_call() noexcept = 0;
+  // Called before a timed transfer of `data`: a system whose applications hold their data in
+  // its own type (PLANET's Binary) converts it here, so the transfer alone is timed, as it is
+  // for the systems that send a caller's buffer as it is.
+  virtual void prepare(const Bytes& data) { (void)data; }
 };
 
 // `count` subscriber connections to one server, each counting the events it receives.
@@ -54,7 +60,7 @@ class Subscribers {
 class System {
  public:
   virtual ~System() = default;
-  // "raw-tcp", "planet", "grpc" or "ice".
+  // "raw-tcp", "planet", "grpc", "ice" or "capnp"; a TLS variant's ends in "-tls".
   virtual std::string name() const = 0;
   // Listens on 127.0.0.1:port, calls ready() once connections are accepted, then serves until
   // the process is killed (never returns normally).
@@ -65,14 +71,30 @@ class System {
                                                  int count) = 0;
 };
 
-// The systems built into this binary (raw TCP and PLANET always; gRPC and Ice when found).
+// The certificates of a TLS variant ("planet-tls", "grpc-tls", "ice-tls"), as
+// scripts/make-certs.sh writes them into one directory. Every variant is secured as a default
+// ICARS home is (docs/security.md): the server presents server.pem, the client checks it against
+// ca.pem and the host it connected to (127.0.0.1, a name server.pem carries); clients present no
+// certificate.
+struct TlsFiles {
+  std::filesystem::path dir;
+  std::string ca() const { return (dir / "ca.pem").string(); }
+  std::string certificate() const { return (dir / "server.pem").string(); }
+  std::string private_key() const { return (dir / "server.key").string(); }
+};
+
+// The systems built into this binary (raw TCP and PLANET always; gRPC, Ice and Cap'n Proto when
+// found); with `tls`, the system's TLS variant (Cap'n Proto has none here).
 std::unique_ptr<System> make_raw_tcp();
-std::unique_ptr<System> make_planet();
+std::unique_ptr<System> make_planet(std::optional<TlsFiles> tls = std::nullopt);
 #ifdef ICARS_BENCH_WITH_GRPC
-std::unique_ptr<System> make_grpc();
+std::unique_ptr<System> make_grpc(std::optional<TlsFiles> tls = std::nullopt);
 #endif
 #ifdef ICARS_BENCH_WITH_ICE
-std::unique_ptr<System> make_ice();
+std::unique_ptr<System> make_ice(std::optional<TlsFiles> tls = std::nullopt);
+#endif
+#ifdef ICARS_BENCH_WITH_CAPNP
+std::unique_ptr<System> make_capnp();
 #endif
 
 }  // namespace icars::bench

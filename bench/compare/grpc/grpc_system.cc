@@ -4,6 +4,7 @@
 // for pipelining, and a ClientReadReactor per subscriber stream. Channel and server settings are
 // gRPC's defaults except the message size limits (the default receive limit is 4 MiB), that each
 // channel owns its connection (see open_channel) and that the server does not share its port.
+// "grpc-tls" is the same over gRPC's TLS credentials (ChannelSecurity, server_credentials).
 #include <grpcpp/grpcpp.h>
 
 #include <algorithm>
@@ -13,9 +14,12 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <fstream>
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <unordered_set>
@@ -59,25 +63,62 @@ std::string address(const std::string& host, std::uint16_t port) {
   return host + ":" + std::to_string(port);
 }
 
+// The whole of a PEM file, as gRPC's TLS credentials take it.
+std::string read_pem(const std::string& file) {
+  std::ifstream in(file);
+  std::ostringstream text;
+  if (!(in && text << in.rdbuf())) {
+    throw std::runtime_error("grpc-tls: cannot read '" + file +
+                             "' (make it with scripts/make-certs.sh DIR, pass --certs DIR)");
+  }
+  return text.str();
+}
+
+// What a client's channels connect with: plaintext, or TLS checking the server's certificate
+// against the CA and the target host (gRPC's default check; 127.0.0.1 is a name server.pem
+// carries). No client certificate is presented.
+struct ChannelSecurity {
+  std::shared_ptr<grpc::ChannelCredentials> credentials;
+  bool tls = false;
+
+  static ChannelSecurity of(const std::optional<TlsFiles>& tls) {
+    if (!tls) return {grpc::InsecureChannelCredentials(), false};
+    grpc::SslCredentialsOptions options;
+    options.pem_root_certs = read_pem(tls->ca());
+    return {grpc::SslCredentials(options), true};
+  }
+};
+
+// The server's: plaintext, or TLS presenting server.pem and asking for no client certificate.
+std::shared_ptr<grpc::ServerCredentials> server_credentials(const std::optional<TlsFiles>& tls) {
+  if (!tls) return grpc::InsecureServerCredentials();
+  grpc::SslServerCredentialsOptions options(GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE);
+  options.pem_key_cert_pairs.push_back(
+      {read_pem(tls->private_key()), read_pem(tls->certificate())});
+  return grpc::SslServerCredentials(options);
+}
+
 // One channel = one HTTP/2 connection. gRPC otherwise shares a connection (subchannel) among all
 // channels of a process with the same target and arguments; a local subchannel pool gives this
 // channel its own. Reconnection is gRPC's default: after a lost connection the channel goes IDLE
 // and the next call connects; failed connection attempts back off 1 s, then x1.6 each time
 // (+-20% jitter) up to 120 s, with a 20 s minimum connect timeout.
-std::shared_ptr<grpc::Channel> open_channel(const std::string& host, std::uint16_t port) {
+std::shared_ptr<grpc::Channel> open_channel(const std::string& host, std::uint16_t port,
+                                            const ChannelSecurity& security) {
   grpc::ChannelArguments arguments;
   arguments.SetMaxReceiveMessageSize(kNoMessageSizeLimit);
   arguments.SetMaxSendMessageSize(kNoMessageSizeLimit);
   arguments.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-  return grpc::CreateCustomChannel(address(host, port), grpc::InsecureChannelCredentials(),
-                                   arguments);
+  return grpc::CreateCustomChannel(address(host, port), security.credentials, arguments);
 }
 
 // Connects now rather than at the first call, so that connecting is not timed as a call.
-void wait_connected(grpc::Channel& channel, const std::string& host, std::uint16_t port) {
+void wait_connected(grpc::Channel& channel, const std::string& host, std::uint16_t port,
+                    const ChannelSecurity& security) {
   if (!channel.WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(10))) {
-    throw std::runtime_error("grpc: cannot connect to " + address(host, port) +
-                             " within 10 s (is the server running?)");
+    throw std::runtime_error(
+        "grpc: cannot connect to " + address(host, port) + " within 10 s (is the server running?" +
+        (security.tls ? " Is its certificate signed by the CA, for " + host + "?)" : ")"));
   }
 }
 
@@ -346,9 +387,9 @@ class Pipeline : public std::enable_shared_from_this<Pipeline> {
 
 class GrpcClient final : public Client {
  public:
-  GrpcClient(const std::string& host, std::uint16_t port)
-      : channel_(open_channel(host, port)), stub_(pb::Bench::NewStub(channel_)) {
-    wait_connected(*channel_, host, port);
+  GrpcClient(const ChannelSecurity& security, const std::string& host, std::uint16_t port)
+      : channel_(open_channel(host, port, security)), stub_(pb::Bench::NewStub(channel_)) {
+    wait_connected(*channel_, host, port, security);
   }
 
   std::int32_t call(std::int32_t x) override {
@@ -433,15 +474,16 @@ class SubscriberReader final : public grpc::ClientReadReactor<pb::Event> {
 
 class GrpcSubscribers final : public Subscribers {
  public:
-  GrpcSubscribers(const std::string& host, std::uint16_t port, int count)
-      : publisher_channel_(open_channel(host, port)),
+  GrpcSubscribers(const ChannelSecurity& security, const std::string& host, std::uint16_t port,
+                  int count)
+      : publisher_channel_(open_channel(host, port, security)),
         publisher_(pb::Bench::NewStub(publisher_channel_)),
         received_(static_cast<std::size_t>(count), 0) {
-    wait_connected(*publisher_channel_, host, port);
+    wait_connected(*publisher_channel_, host, port, security);
     subscriptions_.reserve(static_cast<std::size_t>(count));
     for (std::size_t i = 0; i < static_cast<std::size_t>(count); ++i) {
       Subscription& s = subscriptions_.emplace_back();
-      s.channel = open_channel(host, port);
+      s.channel = open_channel(host, port, security);
       s.stub = pb::Bench::NewStub(s.channel);
       s.reader = std::make_unique<SubscriberReader>(*this, i);
     }
@@ -557,14 +599,15 @@ void SubscriberReader::OnDone(const grpc::Status& status) { owner_.on_done(statu
 
 class GrpcSystem final : public System {
  public:
-  std::string name() const override { return "grpc"; }
+  explicit GrpcSystem(std::optional<TlsFiles> tls) : tls_(std::move(tls)) {}
+
+  std::string name() const override { return tls_ ? "grpc-tls" : "grpc"; }
 
   void serve(std::uint16_t port, const std::function<void()>& ready) override {
     BenchService service;
     grpc::ServerBuilder builder;
     int bound_port = 0;
-    builder.AddListeningPort(address("127.0.0.1", port), grpc::InsecureServerCredentials(),
-                             &bound_port);
+    builder.AddListeningPort(address("127.0.0.1", port), server_credentials(tls_), &bound_port);
     builder.RegisterService(&service);
     builder.SetMaxReceiveMessageSize(kNoMessageSizeLimit);
     builder.SetMaxSendMessageSize(kNoMessageSizeLimit);
@@ -582,20 +625,33 @@ class GrpcSystem final : public System {
   }
 
   std::unique_ptr<Client> connect(const std::string& host, std::uint16_t port) override {
-    return std::make_unique<GrpcClient>(host, port);
+    return std::make_unique<GrpcClient>(client_security(), host, port);
   }
 
   std::unique_ptr<Subscribers> subscribe(const std::string& host, std::uint16_t port,
                                          int count) override {
     if (count < 0) throw std::invalid_argument("grpc subscribe: negative subscriber count");
-    auto subscribers = std::make_unique<GrpcSubscribers>(host, port, count);
+    auto subscribers = std::make_unique<GrpcSubscribers>(client_security(), host, port, count);
     subscribers->wait_established(std::chrono::seconds(30));
     return subscribers;
   }
+
+ private:
+  // Made at the first connection: a server process reads no CA.
+  const ChannelSecurity& client_security() {
+    std::call_once(security_made_, [this] { security_ = ChannelSecurity::of(tls_); });
+    return security_;
+  }
+
+  std::optional<TlsFiles> tls_;
+  std::once_flag security_made_;
+  ChannelSecurity security_;
 };
 
 }  // namespace
 
-std::unique_ptr<System> make_grpc() { return std::make_unique<GrpcSystem>(); }
+std::unique_ptr<System> make_grpc(std::optional<TlsFiles> tls) {
+  return std::make_unique<GrpcSystem>(std::move(tls));
+}
 
 }  // namespace icars::bench

@@ -1,7 +1,8 @@
 // ZeroC Ice 3.7 (C++11 mapping) behind the icars-compare contract (system.h), written as an Ice
 // user would: the Slice interfaces of Bench.ice, one communicator per process, one connection per
 // Client (its own connection id), AMI callbacks for the pipeline, and events sent as oneway calls
-// to callback servants over each subscriber's own bidirectional connection.
+// to callback servants over each subscriber's own bidirectional connection. "ice-tls" is the
+// same over IceSSL's "ssl" endpoints (ice_settings).
 #include <Ice/Ice.h>
 #include <compare_ice/Bench.h>
 
@@ -33,12 +34,34 @@ using ByteView = std::pair<const Ice::Byte*, const Ice::Byte*>;  // Slice ["cpp:
 // callbacks, is serialized), client ACM closing a connection idle for 60 s, and
 // Ice.RetryIntervals=0: one immediate retry when a connection fails (after the request was sent
 // only for idempotent operations), after which the call fails; the next call reconnects.
-Ice::InitializationData ice_settings() {
+//
+// With `tls`, the IceSSL plugin (libIceSSL++11, loaded by the communicator) for "ssl" endpoints:
+// the server presents server.pem (PEM files work with IceSSL's OpenSSL engine) and requests no
+// client certificate (IceSSL.VerifyPeer=0); the client checks the server's certificate against
+// ca.pem (IceSSL.VerifyPeer's default, 2) and its name against the host it connects to
+// (IceSSL.CheckCertName=1; off by default in Ice). Protocols and ciphers are IceSSL's defaults.
+enum class Side { server, client };
+
+Ice::InitializationData ice_settings(const std::optional<TlsFiles>& tls, Side side) {
   Ice::InitializationData init;
   init.properties = Ice::createProperties();
   init.properties->setProperty("Ice.MessageSizeMax", "0");
+  if (tls) {
+    init.properties->setProperty("Ice.Plugin.IceSSL", "IceSSL:createIceSSL");
+    if (side == Side::server) {
+      init.properties->setProperty("IceSSL.CertFile", tls->certificate());
+      init.properties->setProperty("IceSSL.KeyFile", tls->private_key());
+      init.properties->setProperty("IceSSL.VerifyPeer", "0");
+    } else {
+      init.properties->setProperty("IceSSL.CAs", tls->ca());
+      init.properties->setProperty("IceSSL.CheckCertName", "1");
+    }
+  }
   return init;
 }
+
+// The endpoint transport: Ice's "tcp", or IceSSL's "ssl".
+std::string transport(const std::optional<TlsFiles>& tls) { return tls ? "ssl" : "tcp"; }
 
 ByteView view_of(const Bytes& data) {
   const auto* first = reinterpret_cast<const Ice::Byte*>(data.data());
@@ -162,7 +185,8 @@ class BenchServant final : public icarsbench::Bench {
 // process never starts it) and destroyed with the System and the last Client or Subscribers.
 class ClientRuntime {
  public:
-  ClientRuntime() : ice_(ice_settings()) {}
+  explicit ClientRuntime(const std::optional<TlsFiles>& tls)
+      : ice_(ice_settings(tls, Side::client)), transport_(transport(tls)) {}
 
   const std::shared_ptr<Ice::Communicator>& communicator() const { return ice_.communicator(); }
 
@@ -170,7 +194,7 @@ class ClientRuntime {
   // this connects before returning.
   std::shared_ptr<icarsbench::BenchPrx> bench(const std::string& host, std::uint16_t port,
                                               const std::string& kind) {
-    const auto where = "bench:tcp -h \"" + host + "\" -p " + std::to_string(port);
+    const auto where = "bench:" + transport_ + " -h \"" + host + "\" -p " + std::to_string(port);
     const auto id = kind + std::to_string(next_connection_.fetch_add(1));
     return ice_call("connect to " + where, [&] {
       auto bench = Ice::checkedCast<icarsbench::BenchPrx>(
@@ -184,6 +208,7 @@ class ClientRuntime {
 
  private:
   Ice::CommunicatorHolder ice_;
+  std::string transport_;
   std::atomic<std::uint64_t> next_connection_{0};
 };
 
@@ -436,13 +461,15 @@ class IceSubscribers final : public Subscribers {
 
 class IceSystem final : public System {
  public:
-  std::string name() const override { return "ice"; }
+  explicit IceSystem(std::optional<TlsFiles> tls) : tls_(std::move(tls)) {}
+
+  std::string name() const override { return tls_ ? "ice-tls" : "ice"; }
 
   void serve(std::uint16_t port, const std::function<void()>& ready) override {
     ice_call("serve on 127.0.0.1:" + std::to_string(port), [&] {
-      const Ice::CommunicatorHolder ice(ice_settings());
+      const Ice::CommunicatorHolder ice(ice_settings(tls_, Side::server));
       auto adapter = ice->createObjectAdapterWithEndpoints(
-          "Bench", "tcp -h 127.0.0.1 -p " + std::to_string(port));
+          "Bench", transport(tls_) + " -h 127.0.0.1 -p " + std::to_string(port));
       adapter->add(std::make_shared<BenchServant>(), Ice::stringToIdentity("bench"));
       adapter->activate();
       ready();
@@ -467,17 +494,21 @@ class IceSystem final : public System {
   std::shared_ptr<ClientRuntime> runtime() {
     const std::lock_guard lock(mutex_);
     if (!runtime_) {
-      runtime_ = std::make_shared<ClientRuntime>();
+      runtime_ = ice_call("start the client communicator",
+                          [&] { return std::make_shared<ClientRuntime>(tls_); });
     }
     return runtime_;
   }
 
+  std::optional<TlsFiles> tls_;
   std::mutex mutex_;
   std::shared_ptr<ClientRuntime> runtime_;
 };
 
 }  // namespace
 
-std::unique_ptr<System> make_ice() { return std::make_unique<IceSystem>(); }
+std::unique_ptr<System> make_ice(std::optional<TlsFiles> tls) {
+  return std::make_unique<IceSystem>(std::move(tls));
+}
 
 }  // namespace icars::bench
