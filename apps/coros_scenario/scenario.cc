@@ -188,6 +188,7 @@ class ScenarioRunner {
     if (fleet_) fleet_->note(text);
   }
   void print(const std::string& text) const {
+    if (options_.quiet) return;
     std::printf("[%6.2fs] %s\n", wall_now() - started_at_, text.c_str());
     std::fflush(stdout);
   }
@@ -336,33 +337,78 @@ class ScenarioRunner {
   std::string problem_;
 };
 
+// A scenario ready to run: the agent binary found, the options checked against the map and
+// the configurations written (nothing is written or started before everything was checked),
+// stop signals caught.
+class PreparedScenario {
+ public:
+  explicit PreparedScenario(const ScenarioOptions& options)
+      : options_(options),
+        started_at_(wall_now()),
+        agent_bin_(agent_binary(options)),
+        dir_(options.keep_dir),
+        plan_(plan_scenario(options, dir_.path(),
+                            options.broadcast_port != 0 ? options.broadcast_port
+                                                        : coros::free_udp_port())) {
+    dir_.create();
+    for (const auto& a : plan_.agents) {
+      write_private_file(a.config_file, a.config.to_json().dump(2) + "\n");
+    }
+    struct sigaction stop {};
+    stop.sa_handler = on_stop_signal;
+    ::sigemptyset(&stop.sa_mask);
+    ::sigaction(SIGINT, &stop, nullptr);
+    ::sigaction(SIGTERM, &stop, nullptr);
+    ::signal(SIGPIPE, SIG_IGN);
+  }
+
+  double started_at() const { return started_at_; }
+  const ScenarioPlan& plan() const { return plan_; }
+  WorkDir& dir() { return dir_; }
+
+  // Runs the agents from start to stop; the report has their events and the robots' tracks,
+  // and is finished.
+  ScenarioReport run(FleetDashboard* fleet) {
+    ScenarioReport report(plan_, options_, started_at_);
+    ScenarioRunner runner(plan_, options_, agent_bin_, report, started_at_, fleet);
+    runner.run();
+    for (const auto& a : plan_.agents) {  // a missing one shows in the report ("no track file")
+      if (a.role == "robot") report.load_track(a.id, a.track_file);
+    }
+    report.finish(wall_now() - started_at_, runner.timed_out(), runner.interrupted(),
+                  runner.problem());
+    return report;
+  }
+
+ private:
+  static fs::path agent_binary(const ScenarioOptions& options) {
+    if (options.agent_bin.empty()) return default_agent_binary();
+    if (::access(options.agent_bin.c_str(), X_OK) != 0 || fs::is_directory(options.agent_bin)) {
+      throw UsageError(
+          fmt::format("--agent-bin {}: not an executable file", options.agent_bin.string()));
+    }
+    return options.agent_bin;
+  }
+
+  const ScenarioOptions& options_;
+  double started_at_;
+  fs::path agent_bin_;
+  WorkDir dir_;
+  ScenarioPlan plan_;
+};
+
 }  // namespace
 
+ScenarioReport run_agents(const ScenarioOptions& options) {
+  PreparedScenario scenario(options);
+  return scenario.run(nullptr);
+}
+
 int run_scenario(const ScenarioOptions& options) {
-  const double started_at = wall_now();
-  fs::path agent_bin = options.agent_bin;
-  if (agent_bin.empty()) {
-    agent_bin = default_agent_binary();
-  } else if (::access(agent_bin.c_str(), X_OK) != 0 || fs::is_directory(agent_bin)) {
-    throw UsageError(fmt::format("--agent-bin {}: not an executable file", agent_bin.string()));
-  }
-  const std::uint16_t port =
-      options.broadcast_port != 0 ? options.broadcast_port : coros::free_udp_port();
-
-  // Everything is checked before anything is written or started.
-  WorkDir dir(options.keep_dir);
-  const ScenarioPlan plan = plan_scenario(options, dir.path(), port);
-  dir.create();
-  for (const auto& a : plan.agents) {
-    write_private_file(a.config_file, a.config.to_json().dump(2) + "\n");
-  }
-
-  struct sigaction stop {};
-  stop.sa_handler = on_stop_signal;
-  ::sigemptyset(&stop.sa_mask);
-  ::sigaction(SIGINT, &stop, nullptr);
-  ::sigaction(SIGTERM, &stop, nullptr);
-  ::signal(SIGPIPE, SIG_IGN);
+  PreparedScenario scenario(options);
+  const ScenarioPlan& plan = scenario.plan();
+  WorkDir& dir = scenario.dir();
+  const double started_at = scenario.started_at();
 
   std::unique_ptr<FleetDashboard> fleet;
   if (!options.http.empty()) {
@@ -376,14 +422,7 @@ int run_scenario(const ScenarioOptions& options) {
     std::fflush(stdout);
   }
 
-  ScenarioReport report(plan, options, started_at);
-  ScenarioRunner runner(plan, options, agent_bin, report, started_at, fleet.get());
-  runner.run();
-  for (const auto& a : plan.agents) {  // a missing one shows in the report ("no track file")
-    if (a.role == "robot") report.load_track(a.id, a.track_file);
-  }
-  report.finish(wall_now() - started_at, runner.timed_out(), runner.interrupted(),
-                runner.problem());
+  const ScenarioReport report = scenario.run(fleet.get());
 
   std::printf("\n%s", report.to_text().c_str());
   int code = report.succeeded() ? 0 : 1;

@@ -177,6 +177,12 @@ std::vector<std::pair<std::string, sim::Point>> robot_starts(const sim::House& h
   return starts;
 }
 
+std::chrono::milliseconds bid_window(const ScenarioOptions& options) {
+  return std::chrono::milliseconds(options.bid_window_ms > 0
+                                       ? options.bid_window_ms
+                                       : 400 + 25 * std::max(0, options.robots - 16));
+}
+
 ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
                            std::uint16_t broadcast_port) {
   if (options.robots < 1 || options.robots > 500) {
@@ -302,9 +308,7 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
     c.transport.broadcast_port = broadcast_port;
     c.hello_period = std::chrono::milliseconds(200);
     c.neighbor_expiry = std::chrono::milliseconds(options.neighbor_expiry_ms);
-    c.bid_window = std::chrono::milliseconds(options.bid_window_ms > 0
-                                                 ? options.bid_window_ms
-                                                 : 400 + 25 * std::max(0, options.robots - 16));
+    c.bid_window = bid_window(options);
     c.retry_period = std::chrono::milliseconds(100);
     c.max_retries = 20;
     c.map = plan.map;
@@ -331,6 +335,9 @@ ScenarioPlan plan_scenario(const ScenarioOptions& options, const fs::path& dir,
     a.config.speedup = options.speedup;
     a.config.robot_kind = "sim";
     a.config.track_file = a.track_file;
+    // The robots share their distance fields (coros::FieldCache): on this one host each field
+    // is computed once, not once per robot process.
+    a.config.field_cache = dir / "fields";
     plan.agents.push_back(std::move(a));
   }
   AgentPlan user;

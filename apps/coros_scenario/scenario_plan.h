@@ -71,6 +71,7 @@ struct ScenarioOptions {
   int neighbor_expiry_ms = 1000;     // no HELLO for this long: the agent is gone
   std::uint16_t broadcast_port = 0;  // 0: a free one
   bool verbose = false;              // echo every agent event
+  bool quiet = false;                // print nothing while running (run_agents() callers)
   // The dashboard's fleet page (docs/dashboard.md) on this host:port, "" for none; TLS with a
   // certificate and key (required off loopback); how long it stays after the summary (seconds,
   // negative: until SIGINT or SIGTERM).
@@ -107,6 +108,10 @@ inline constexpr const char* kUserId = "user";
 std::vector<std::pair<std::string, sim::Point>> robot_starts(const sim::House& house,
                                                              const sim::OccupancyGrid& grid,
                                                              std::size_t count);
+
+// The user's bid window: options.bid_window_ms, or when 0, 400 ms plus 25 ms per robot beyond
+// 16. An upper bound: the user's auction closes as soon as every robot it knows of has bid.
+std::chrono::milliseconds bid_window(const ScenarioOptions& options);
 
 // Validates the options against the map (places known, kill rule about an existing robot,
 // faults well-formed) and lays out the agents' configurations in `dir`; writes nothing.

@@ -54,7 +54,9 @@ void write_track(const std::string& path, const std::string& id, const SimRobot&
 int run(const std::string& config_file, int monitor_ms) {
   const AgentConfiguration config = AgentConfiguration::load(config_file);
   std::shared_ptr<const MapPlanner> map;
-  if (!config.map.empty()) map = MapPlanner::load(config.map.string(), config.radius);
+  if (!config.map.empty()) {
+    map = MapPlanner::load(config.map.string(), config.radius, config.field_cache);
+  }
 
   Agent agent(config);
   std::mutex out_mutex;

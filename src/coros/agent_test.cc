@@ -1,6 +1,7 @@
 // Agents on real loopback UDP sockets in one process: discovery converges and forgets agents
 // that stop, garbage datagrams are counted and never stop an agent, the courier auction goes
-// to the lowest planned cost with a deterministic tie-break, a robot that dies mid-delivery
+// to the lowest planned cost with a deterministic tie-break and closes once every known robot
+// has bid (at the end of its window when one stays silent), a robot that dies mid-delivery
 // has its delivery auctioned again and completed, and with datagrams dropped, duplicated and
 // delayed every delivery is still done once.
 #include "icars/coros/agent.h"
@@ -164,6 +165,79 @@ TEST_F(Fleet, LowestPlannedCostWinsAndTiesGoToTheSmallerId) {
   const auto table = monitor.call([&] { return render_tasks(monitor.tasks()); });
   EXPECT_NE(table.find("robot2"), std::string::npos) << table;
   EXPECT_NE(table.find("delivered"), std::string::npos) << table;
+}
+
+// Seconds from the user's auction of `task` (its first round) to the award, from the events'
+// own wall-clock stamps.
+double auction_to_award(const coros_test::EventLog& log, const std::string& task) {
+  const auto time_of = [&](const std::string& kind) {
+    for (const auto& e : log.find(kind)) {
+      if (e["task"] == task && e["round"] == 1) return e["time"].get<double>();
+    }
+    ADD_FAILURE() << "no " << kind << " event for " << task << ":\n" << log.dump();
+    return 0.0;
+  };
+  return time_of("awarded") - time_of("auction");
+}
+
+// The auction does not wait for the rest of its window once every robot the user knows of has
+// bid; a monitor in the user's neighbour table is no bidder.
+TEST_F(Fleet, AnAuctionClosesAsSoonAsEveryKnownRobotHasBid) {
+  bid_window_ = 10s;
+  add_robot("robot1", 1.0, 1.5);
+  add_robot("robot2", 3.0, 2.0);
+  add_robot("robot3", 7.0, 2.0);
+  auto user = add_user();
+  add_agent(config("monitor", "monitor"));
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("awarded") >= 1; }, 20s));
+  EXPECT_LT(auction_to_award(log_, task), 5.0);  // half the window, on a loaded machine
+  EXPECT_EQ(log_.find("awarded")[0]["bids"].size(), 3u);
+  EXPECT_EQ(log_.find("awarded")[0]["robot"], "robot2");
+}
+
+// A robot that never bids (here an agent announcing itself as a robot without the courier
+// operator) holds the auction open until its window ends; then the bids in decide it.
+TEST_F(Fleet, AnAuctionWithASilentRobotClosesWhenItsWindowEnds) {
+  bid_window_ = 1500ms;
+  add_robot("robot1", 1.0, 1.5);
+  add_robot("robot2", 3.0, 2.0);
+  add_agent(config("robot3", "robot"));
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("awarded") >= 1; }, 20s));
+  EXPECT_GE(auction_to_award(log_, task), 1.45);
+  const auto awarded = log_.find("awarded")[0];
+  EXPECT_EQ(awarded["bids"].size(), 2u) << awarded.dump();
+  EXPECT_EQ(awarded["robot"], "robot2");
+  EXPECT_EQ(awarded["round"], 1);
+}
+
+// A silent robot that leaves the user's neighbour table (its HELLOs stop) is no longer waited
+// for: the auction closes then, not at the end of its window.
+TEST_F(Fleet, AnAuctionStopsWaitingForASilentRobotThatLeaves) {
+  bid_window_ = 20s;
+  add_robot("robot1", 1.0, 1.5);
+  add_robot("robot2", 3.0, 2.0);
+  Agent& silent = add_agent(config("robot3", "robot"));
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("bid_received") >= 2; }, 20s));
+  silent.stop();
+  ASSERT_TRUE(wait_until([&] { return log_.count("awarded") >= 1; }, 15s));
+  EXPECT_LT(auction_to_award(log_, task), 15.0);  // the expiry is 1.5 s
+  const auto awarded = log_.find("awarded")[0];
+  EXPECT_EQ(awarded["bids"].size(), 2u) << awarded.dump();
+  EXPECT_EQ(awarded["robot"], "robot2");
 }
 
 TEST_F(Fleet, DeadWinnerIsDetectedAndTheTaskAuctionedAgain) {

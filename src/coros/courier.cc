@@ -454,12 +454,15 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   }
   r.bids[m.robot] = m.cost;
   au.bidders[m.robot] = e.from;
-  // Close early once every robot we know of (and may bid) has bid.
+  if (every_known_robot_bid(r)) close_round(m.task_id);
+}
+
+bool CourierUserOperator::every_known_robot_bid(const DeliveryRecord& r) const {
   for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
     if (std::find(r.excluded.begin(), r.excluded.end(), n.id) != r.excluded.end()) continue;
-    if (!r.bids.contains(n.id)) return;
+    if (!r.bids.contains(n.id)) return false;
   }
-  close_round(m.task_id);
+  return true;
 }
 
 void CourierUserOperator::close_round(const std::string& task_id) {
@@ -618,12 +621,25 @@ void CourierUserOperator::check_all_done() {
 }
 
 void CourierUserOperator::on_neighbor_left(const AgentState& gone) {
+  std::vector<std::string> open;  // auctions that may now have every bid they wait for
   for (auto& [id, r] : deliveries_) {
-    if (r.finished || r.robot != gone.id) continue;
+    if (r.finished) continue;
+    if (r.robot.empty()) {
+      open.push_back(id);
+      continue;
+    }
+    if (r.robot != gone.id) continue;
     agent().broadcast(RevokeMessage{r.task_id, r.round, gone.id});
     reauction(r, gone.id,
               fmt::format("{} stopped answering (no HELLO for {} ms)", gone.id,
                           agent().config().neighbor_expiry.count()));
+  }
+  // A robot that left without bidding is no longer waited for.
+  for (const auto& id : open) {
+    const DeliveryRecord& r = deliveries_.at(id);
+    if (r.robot.empty() && !r.finished && !r.bids.empty() && every_known_robot_bid(r)) {
+      close_round(id);
+    }
   }
 }
 

@@ -123,8 +123,8 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   ConfigReader in(source_name);
   in.only(root, "the configuration",
           {"id", "role", "ip", "port", "broadcast", "hello_period_ms", "neighbor_expiry_ms",
-           "bid_window_ms", "retry_period_ms", "max_retries", "map", "robot", "track_file", "user",
-           "faults", "key", "key_file", "insecure"});
+           "bid_window_ms", "retry_period_ms", "max_retries", "map", "field_cache", "robot",
+           "track_file", "user", "faults", "key", "key_file", "insecure"});
   AgentConfiguration c;
   c.id = in.string(root, "id", "");
   if (c.id.empty() || c.id.size() > 255)
@@ -153,6 +153,10 @@ AgentConfiguration AgentConfiguration::parse(const std::string& text,
   const std::string map = in.string(root, "map", "");
   if (!map.empty()) {
     c.map = std::filesystem::path(map).is_absolute() ? std::filesystem::path(map) : base_dir / map;
+  }
+  if (const std::string cache = in.string(root, "field_cache", ""); !cache.empty()) {
+    const std::filesystem::path p(cache);
+    c.field_cache = p.is_absolute() ? p : base_dir / p;
   }
   if (root.contains("robot")) {
     const json& r = root["robot"];
@@ -243,6 +247,7 @@ nlohmann::json AgentConfiguration::to_json() const {
   out["retry_period_ms"] = retry_period.count();
   out["max_retries"] = max_retries;
   if (!map.empty()) out["map"] = map.string();
+  if (!field_cache.empty()) out["field_cache"] = field_cache.string();
   const bool robot_set = start != defaults.start || speed != defaults.speed ||
                          radius != defaults.radius || speedup != defaults.speedup ||
                          robot_kind != defaults.robot_kind ||

@@ -86,7 +86,7 @@ TEST(CorosConfiguration, ReadsEverySetting) {
     "id": "user", "role": "user", "ip": "127.0.0.1", "port": 0,
     "broadcast": {"address": "127.255.255.255", "port": 47999},
     "hello_period_ms": 100, "neighbor_expiry_ms": 500, "bid_window_ms": 300,
-    "retry_period_ms": 50, "max_retries": 7, "map": "office.xml",
+    "retry_period_ms": 50, "max_retries": 7, "map": "office.xml", "field_cache": "fields",
     "user": {"deliveries": [["a", "b"], ["c", "d"]], "expect_robots": 5, "start_after_ms": 2000,
              "delivery_interval_ms": 100, "exit_when_done": false},
     "faults": "drop=0.1,seed=3",
@@ -100,6 +100,7 @@ TEST(CorosConfiguration, ReadsEverySetting) {
   EXPECT_EQ(c.bid_window, 300ms);
   EXPECT_EQ(c.max_retries, 7);
   EXPECT_EQ(c.map, std::filesystem::path("/maps/office.xml"));
+  EXPECT_EQ(c.field_cache, std::filesystem::path("/maps/fields"));
   ASSERT_EQ(c.deliveries.size(), 2u);
   EXPECT_EQ(c.deliveries[1].second, "d");
   EXPECT_EQ(c.expect_robots, 5);
@@ -149,6 +150,7 @@ void expect_same(const AgentConfiguration& a, const AgentConfiguration& b) {
   EXPECT_EQ(a.retry_period, b.retry_period);
   EXPECT_EQ(a.max_retries, b.max_retries);
   EXPECT_EQ(a.map, b.map);
+  EXPECT_EQ(a.field_cache, b.field_cache);
   EXPECT_EQ(a.start, b.start);
   EXPECT_EQ(a.speed, b.speed);
   EXPECT_EQ(a.radius, b.radius);
@@ -190,6 +192,7 @@ TEST(CorosConfiguration, ToJsonIsReadBackAsTheSameConfiguration) {
   robot.retry_period = 70ms;
   robot.max_retries = 9;
   robot.map = "/maps/office_floor.xml";  // absolute: parse's base_dir does not apply
+  robot.field_cache = "/tmp/fields";
   robot.start = "1.25,3.50";
   robot.speed = 0.35;
   robot.radius = 0.3;

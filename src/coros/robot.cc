@@ -22,12 +22,17 @@ std::string_view to_string(RobotStatus status) {
 
 // --- MapPlanner ----------------------------------------------------------------------------
 
-MapPlanner::MapPlanner(sim::House house, double robot_radius)
-    : house_(std::move(house)), grid_(house_, robot_radius) {}
+MapPlanner::MapPlanner(sim::House house, double robot_radius,
+                       const std::filesystem::path& field_cache)
+    : house_(std::move(house)),
+      grid_(house_, robot_radius),
+      cache_(field_cache.empty() ? nullptr
+                                 : std::make_unique<const FieldCache>(field_cache, grid_)) {}
 
-std::shared_ptr<const MapPlanner> MapPlanner::load(const std::string& file, double robot_radius) {
+std::shared_ptr<const MapPlanner> MapPlanner::load(const std::string& file, double robot_radius,
+                                                   const std::filesystem::path& field_cache) {
   try {
-    return std::make_shared<const MapPlanner>(sim::load_house(file), robot_radius);
+    return std::make_shared<const MapPlanner>(sim::load_house(file), robot_radius, field_cache);
   } catch (const sim::HouseError& e) {
     throw CorosError(std::string("map: ") + e.what());
   }
@@ -71,9 +76,9 @@ std::shared_ptr<const sim::DistanceField> MapPlanner::field(sim::Point to) const
       return fields_.front();
     }
   }
-  // Computed under the lock: robots asking for the same place at once wait for one field
-  // rather than each computing its own.
-  auto made = std::make_shared<const sim::DistanceField>(grid_, to);
+  // Computed (or read from the cache) under the lock: robots asking for the same place at once
+  // wait for one field rather than each computing its own.
+  auto made = cache_ ? cache_->field(to) : std::make_shared<const sim::DistanceField>(grid_, to);
   fields_.push_front(made);
   std::size_t bytes = 0;
   for (auto it = fields_.begin(); it != fields_.end(); ++it) {

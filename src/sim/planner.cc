@@ -345,14 +345,30 @@ bool move_free(const OccupancyGrid& grid, Cell c, const Move& m) {
   return true;
 }
 
-}  // namespace
-
-DistanceField::DistanceField(const OccupancyGrid& grid, Point goal) : grid_(grid), goal_(goal) {
+// The goal's cell, which must be free.
+Cell free_goal_cell(const OccupancyGrid& grid, Point goal) {
   const auto cell = grid.cell_of(goal);
   if (!cell || !grid.free(*cell)) {
     throw std::invalid_argument(fmt::format("({:.2f}, {:.2f}) is not free space: no distances to it", goal.x, goal.y));
   }
-  goal_cell_ = *cell;
+  return *cell;
+}
+
+}  // namespace
+
+DistanceField::DistanceField(const OccupancyGrid& grid, Point goal, std::vector<float> distances)
+    : grid_(grid),
+      goal_(goal),
+      goal_cell_(free_goal_cell(grid, goal)),
+      distance_(std::move(distances)) {
+  if (distance_.size() != grid.free_.size()) {
+    throw std::invalid_argument(fmt::format("a distance field of {} cells for a grid of {} cells",
+                                            distance_.size(), grid.free_.size()));
+  }
+}
+
+DistanceField::DistanceField(const OccupancyGrid& grid, Point goal)
+    : grid_(grid), goal_(goal), goal_cell_(free_goal_cell(grid, goal)) {
   const auto w = static_cast<std::size_t>(grid.width_);
   const auto n = grid.free_.size();
   std::vector<double> d(n, std::numeric_limits<double>::infinity());

@@ -8,8 +8,8 @@
 //      drive, planned over the map: from the end of its current queue (or where it stands)
 //      to the pickup office, then to the dropoff office. It answers every copy of the auction
 //      with the same bid.
-//   3. The auction closes when every robot in the user's neighbour table has bid, or when the
-//      window ends. The lowest cost wins; equal costs go to the smaller robot id. No bid:
+//   3. The auction closes when every robot in the user's neighbour table has bid (a robot that
+//      leaves the table is no longer waited for), or when the window ends. The lowest cost wins; equal costs go to the smaller robot id. No bid:
 //      the task is auctioned again (round + 1) after a pause, up to max_rounds.
 //   4. The user resends AWARD until the winner's AWARD_ACK; a winner that never answers is
 //      excluded and the task auctioned again. The robot queues the CourierDeliveryTask
@@ -153,6 +153,9 @@ class CourierUserOperator : public SimpleOperator {
   void start_round(DeliveryRecord& record);
   void close_round(const std::string& task_id);
   void on_bid(const BidMessage& m, const Envelope& e);
+  // Every robot in the neighbour table (robots only, not monitors or users) that may bid in
+  // this round has bid: the round closes without waiting for the rest of its window.
+  bool every_known_robot_bid(const DeliveryRecord& record) const;
   void on_award_ack(const AwardAckMessage& m, const Envelope& e);
   void on_status(const TaskStatusMessage& m, const Envelope& e);
   void on_result(const ResultMessage& m, const Envelope& e);

@@ -64,6 +64,9 @@ struct AgentConfiguration {
   std::chrono::milliseconds retry_period{100};  // resend awards and results until acknowledged
   int max_retries = 20;
   std::filesystem::path map;  // the house/office map (sim house XML)
+  // A directory where the agents of one host share the map's distance fields (FieldCache), so
+  // each is computed once per host rather than once per agent; "" for none.
+  std::filesystem::path field_cache;
   // Robots: where they start (a waypoint or place name on the map, or "x,y"), their speed,
   // and how much faster than real time their simulated motion runs.
   std::string start;
@@ -81,8 +84,9 @@ struct AgentConfiguration {
   bool exit_when_done = true;
   std::filesystem::path track_file;  // robots: write the driven path here as JSON on exit
 
-  // Reads a JSON configuration (docs/coros.md); a relative map or key file path is relative to
-  // the file. The fleet key ('key_file' or 'key') is required unless 'insecure' is true.
+  // Reads a JSON configuration (docs/coros.md); a relative map, field cache or key file path is
+  // relative to the file. The fleet key ('key_file' or 'key') is required unless 'insecure' is
+  // true.
   // Throws CorosError "file: what was wrong" for unreadable, malformed or inconsistent files.
   static AgentConfiguration load(const std::filesystem::path& file);
   static AgentConfiguration parse(const std::string& json, const std::filesystem::path& base_dir,

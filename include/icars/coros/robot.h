@@ -11,6 +11,7 @@
 // their own io_context.
 #pragma once
 
+#include <filesystem>
 #include <functional>
 #include <list>
 #include <memory>
@@ -20,6 +21,7 @@
 #include <vector>
 
 #include "icars/clock/sim_clock.h"
+#include "icars/coros/field_cache.h"
 #include "icars/sim/house.h"
 #include "icars/sim/planner.h"
 #include "icars/sim/world.h"
@@ -54,8 +56,12 @@ class Robot {
 // and path costs. Immutable after construction, so it may be shared between threads.
 class MapPlanner {
  public:
-  MapPlanner(sim::House house, double robot_radius);
-  static std::shared_ptr<const MapPlanner> load(const std::string& file, double robot_radius);
+  // With a `field_cache` directory, the fields are shared with the other agents of this host
+  // that plan on the same map (FieldCache); without one, each MapPlanner computes its own.
+  // Throws CorosError when the directory cannot be created.
+  MapPlanner(sim::House house, double robot_radius, const std::filesystem::path& field_cache = {});
+  static std::shared_ptr<const MapPlanner> load(const std::string& file, double robot_radius,
+                                                const std::filesystem::path& field_cache = {});
 
   const sim::House& house() const { return house_; }
   const sim::OccupancyGrid& grid() const { return grid_; }
@@ -63,9 +69,9 @@ class MapPlanner {
   sim::Point locate(const std::string& name) const;
   // The length of a path from `from` to `to` around the walls, nullopt when there is none
   // (never straight-line): a look-up in the distance field of `to` (sim::DistanceField), which
-  // is computed the first time `to` is asked about and kept (the most recently used fields, up
-  // to kFieldBytes), so a bid costs microseconds, not a search of the map. Safe to call from
-  // several threads.
+  // is computed (or read from the field cache) the first time `to` is asked about and kept (the
+  // most recently used fields, up to kFieldBytes), so a bid costs microseconds, not a search of
+  // the map. Safe to call from several threads.
   std::optional<double> path_cost(sim::Point from, sim::Point to) const;
   // The path itself, down the same field.
   std::optional<std::vector<sim::Point>> path(sim::Point from, sim::Point to) const;
@@ -79,6 +85,7 @@ class MapPlanner {
 
   sim::House house_;
   sim::OccupancyGrid grid_;
+  std::unique_ptr<const FieldCache> cache_;  // null without a field_cache directory
   mutable std::mutex mutex_;
   mutable std::list<std::shared_ptr<const sim::DistanceField>> fields_;  // most recently used first
 };

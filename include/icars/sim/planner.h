@@ -98,6 +98,10 @@ class DistanceField {
   // `goal` must be free (std::invalid_argument otherwise). The field refers to `grid`: keep
   // it alive.
   DistanceField(const OccupancyGrid& grid, Point goal);
+  // A field computed before for the same grid and goal, from its distances() (as
+  // coros::FieldCache keeps them in files); std::invalid_argument when `goal` is not free or
+  // there is not one distance per cell of `grid`.
+  DistanceField(const OccupancyGrid& grid, Point goal, std::vector<float> distances);
 
   Point goal() const { return goal_; }
   // The length of a path from `from` to the goal; nullopt when there is none (as plan_path:
@@ -107,6 +111,9 @@ class DistanceField {
   std::optional<std::vector<Point>> path_from(Point from) const;
   // Bytes the field holds.
   std::size_t memory() const { return distance_.size() * sizeof(float); }
+  // The distance of every cell to the goal in metres, row by row; infinity where it cannot be
+  // reached.
+  const std::vector<float>& distances() const { return distance_; }
 
  private:
   struct Start {
