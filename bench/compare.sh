@@ -12,7 +12,9 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 scripts/install-deps.sh --peers
-cmake --preset release -DICARS_BUILD_TESTS=OFF >/dev/null
+# The peers were just installed: build them in even where an earlier configure found none.
+cmake --preset release -DICARS_BUILD_TESTS=OFF -DICARS_BENCH_WITH_GRPC=ON -DICARS_BENCH_WITH_ICE=ON \
+  -DICARS_BENCH_WITH_CAPNP=ON >/dev/null
 cmake --build build/release --target icars-compare upper_bench icars-footprint coros_scale \
   coros_processes
 
