@@ -420,7 +420,7 @@ TEST(RestoreReportOnly, TellsWithoutReapplying) {
   const auto port = server.listen("127.0.0.1", 0);
   std::mutex mutex;
   std::vector<p::Event> restored;
-  const auto watch = sf.container().watch_devices([&](const p::Event& e) {
+  const auto watch = planet_test::watch_devices_scoped(sf.container(), [&](const p::Event& e) {
     std::lock_guard lock(mutex);
     if (e.type() == "DeviceRestored") restored.push_back(e);
   });
@@ -437,7 +437,7 @@ TEST(RestoreReportOnly, TellsWithoutReapplying) {
     std::lock_guard lock(mutex);
     return restored.size() == 1;
   }, 20s));
-  sf.container().remove_device_watcher(watch);
+  std::lock_guard lock(mutex);
   EXPECT_FALSE(restored.front().get<bool>("reapplied"));
   EXPECT_EQ(restored.front().get<std::string>("differences"), "on true -> false");
   EXPECT_FALSE(manager->tv->now().on);

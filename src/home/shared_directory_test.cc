@@ -21,6 +21,7 @@
 #include "icars/server/mediating_server.h"
 #include "icars/service/shared_directory.h"
 #include "child_process.h"
+#include "scoped_subscription.h"
 
 namespace icars::home {
 namespace {
@@ -130,9 +131,14 @@ TEST_F(SharedDirectoryTest, ADeviceRegisteredOnOneServerIsCalledAndHeardFromAnot
   auto sofa = on_b<OccupancyService>("OccupancySensor");
   ASSERT_NE(sofa, nullptr);
   std::atomic<int> heard_on_b{0}, heard_on_a{0};
-  sofa->subscribe([&](const OccupancyEvent& e) { heard_on_b += e.occupied ? 1 : 0; });
-  a_->container().find_first<OccupancyService>(s::ServiceQuery::of_type("OccupancySensor"))
-      ->subscribe([&](const OccupancyEvent& e) { heard_on_a += e.occupied ? 1 : 0; });
+  // Scoped, like every subscription below: the servers outlive the test body and an event
+  // arriving while it ends must not reach its locals.
+  const auto on_b_sub =
+      planet_test::subscribe_scoped(*sofa, [&](const OccupancyEvent& e) { heard_on_b += e.occupied ? 1 : 0; });
+  auto sofa_on_a = a_->container().find_first<OccupancyService>(s::ServiceQuery::of_type("OccupancySensor"));
+  ASSERT_NE(sofa_on_a, nullptr);
+  const auto on_a_sub =
+      planet_test::subscribe_scoped(*sofa_on_a, [&](const OccupancyEvent& e) { heard_on_a += e.occupied ? 1 : 0; });
   ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s));
   devices.sofa->set(true);
   EXPECT_TRUE(planet_test::wait_until([&] { return heard_on_b == 1 && heard_on_a == 1; }, 30s))
@@ -142,7 +148,8 @@ TEST_F(SharedDirectoryTest, ADeviceRegisteredOnOneServerIsCalledAndHeardFromAnot
 TEST_F(SharedDirectoryTest, AMirroredServiceFollowsItsDeviceOutagesAndRegistrations) {
   std::mutex mutex;
   std::vector<std::string> device_events;
-  b_->container().watch_devices([&](const p::Event& e) {
+  // Scoped: B hears `again` going away while the test body ends, before the fixture stops B.
+  const auto watch = planet_test::watch_devices_scoped(b_->container(), [&](const p::Event& e) {
     std::lock_guard lock(mutex);
     device_events.push_back(e.type() + " " + e.get<std::string>("device"));
   });
@@ -175,7 +182,7 @@ TEST_F(SharedDirectoryTest, AMirroredServiceFollowsItsDeviceOutagesAndRegistrati
   EXPECT_TRUE(again.light->on());
   auto sofa_now = on_b<OccupancyService>("OccupancySensor");
   std::atomic<int> heard{0};
-  sofa_now->subscribe([&](const OccupancyEvent&) { ++heard; });
+  const auto subscription = planet_test::subscribe_scoped(*sofa_now, [&](const OccupancyEvent&) { ++heard; });
   ASSERT_TRUE(planet_test::wait_until([&] { return again.sofa->subscribers() == 2; }, 30s));
   again.sofa->set(true);
   EXPECT_TRUE(planet_test::wait_until([&] { return heard == 1; }, 30s));
@@ -198,7 +205,7 @@ TEST_F(SharedDirectoryTest, RelaysRefuseImpostorsAndMalformedCallsClearly) {
   ASSERT_FALSE(relay_listener.empty());
   auto sofa = on_b<OccupancyService>("OccupancySensor");
   std::atomic<int> heard{0};
-  sofa->subscribe([&](const OccupancyEvent&) { ++heard; });
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const OccupancyEvent&) { ++heard; });
 
   p::Communicator impostor;
   auto link = impostor.connect("127.0.0.1", a_port_);
@@ -284,7 +291,7 @@ TEST_F(SharedDirectoryTest, ADeviceManagerMovesToAnotherServerAndEveryServerFoll
   auto sofa = c.container().find_first<OccupancyService>(s::ServiceQuery::of_type("OccupancySensor").available());
   ASSERT_NE(sofa, nullptr);
   std::atomic<int> heard{0};
-  sofa->subscribe([&](const OccupancyEvent&) { ++heard; });
+  const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const OccupancyEvent&) { ++heard; });
   ASSERT_TRUE(planet_test::wait_until([&] { return devices.sofa->subscribers() == 2; }, 30s))
       << devices.sofa->subscribers();
   devices.sofa->set(true);
@@ -309,7 +316,7 @@ TEST_F(SharedDirectoryTest, SpeechOnAMicrophoneOfAnotherServerIsRecognizedThroug
   auto speech = on_b<SpeechSensor>("SpeechSensor");
   std::mutex mutex;
   std::vector<std::string> heard;
-  speech->subscribe([&](const SpeechEvent& e) {
+  const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent& e) {
     std::lock_guard lock(mutex);
     heard.push_back(e.text);
   });

@@ -6,6 +6,7 @@
 //   std::atomic<int> heard{0};
 //   const auto subscription = planet_test::subscribe_scoped(*speech, [&](const SpeechEvent&) { ++heard; });
 //   const auto watch = planet_test::watch_scoped(*tv, [&](const bool& up) { ... });
+//   const auto devices = planet_test::watch_devices_scoped(container, [&](const Event& e) { ... });
 #pragma once
 
 #include <cstdint>
@@ -41,6 +42,15 @@ template <class Source, class Fn>
 template <class Source, class Fn>
 [[nodiscard]] ScopedSubscription<Source> watch_scoped(Source& source, Fn&& fn) {
   return ScopedSubscription<Source>(source, source.watch(std::forward<Fn>(fn)), &Source::remove_watcher);
+}
+
+// A watch of a service container's device events (DeviceLost, DeviceBack...): they arrive on
+// the server's io thread, possibly after the test body has returned, while the servers that
+// send them are still being torn down.
+template <class Container, class Fn>
+[[nodiscard]] ScopedSubscription<Container> watch_devices_scoped(Container& container, Fn&& fn) {
+  return ScopedSubscription<Container>(container, container.watch_devices(std::forward<Fn>(fn)),
+                                       &Container::remove_device_watcher);
 }
 
 }  // namespace planet_test
