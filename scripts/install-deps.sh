@@ -28,8 +28,9 @@ packages=(
   libespeak-ng-dev espeak-ng libpocketsphinx-dev libsphinxbase-dev pocketsphinx-en-us
   libfftw3-dev libsamplerate0-dev libasound2-dev sox
   # the simulated house's speech model, adapted to its voices at build time (tools/speech-model):
-  # sphinxtrain's bw and map_adapt, sphinx_fe, numpy for the mixture weights
-  sphinxtrain sphinxbase-utils python3-numpy
+  # sphinxtrain's bw and map_adapt, sphinx_fe, pocketsphinx_mdef_convert (in pocketsphinx, the
+  # recognizer's programs), numpy for the mixture weights
+  sphinxtrain sphinxbase-utils pocketsphinx python3-numpy
   # the dashboard's browser tests (tests/browser): node runs them, puppeteer-core drives chromium
   nodejs chromium
 )

@@ -9,6 +9,8 @@
 #include <sys/socket.h>
 #include <sys/uio.h>
 
+#include <openssl/bio.h>
+#include <openssl/err.h>
 #include <openssl/ssl.h>
 #include <openssl/x509.h>
 
@@ -82,12 +84,132 @@ void ConnectionOptions::validate() const {
   }
 }
 
-// TLS over the connection's socket. asio's TLS stream writes one buffer per record, so a batch
-// of frames is copied into one buffer first (`out`).
+// TLS over the connection's socket: OpenSSL's engine between two memory BIOs, the socket read
+// and written by the connection itself. So whichever thread reads or writes the socket (the io
+// thread, a caller sending its request or reading its reply directly) runs the engine there,
+// under `engine`, and a TLS call takes the same direct paths as a plaintext one. Lock order:
+// send_mutex_ or read_mutex_, then `engine`.
 struct Connection::Tls {
-  Tls(asio::ip::tcp::socket& socket, asio::ssl::context& context) : stream(socket, context) {}
-  asio::ssl::stream<asio::ip::tcp::socket&> stream;
-  std::vector<std::byte> out;
+  explicit Tls(asio::ssl::context& context) : ssl(SSL_new(context.native_handle())) {
+    if (ssl == nullptr) throw std::runtime_error("SSL_new failed");
+    BIO* in_bio = BIO_new(BIO_s_mem());
+    BIO* out_bio = BIO_new(BIO_s_mem());
+    if (in_bio == nullptr || out_bio == nullptr) {
+      BIO_free(in_bio);
+      BIO_free(out_bio);
+      SSL_free(ssl);
+      throw std::runtime_error("BIO_new failed");
+    }
+    // Renegotiation (TLS 1.2) would let the peer make a write wait for a read.
+    SSL_set_options(ssl, SSL_OP_NO_RENEGOTIATION);
+    BIO_set_mem_eof_return(in_bio, -1);  // empty: "more to come", not the end of the stream
+    SSL_set_bio(ssl, in_bio, out_bio);   // owned by ssl from here
+    in = in_bio;
+    out = out_bio;
+  }
+  ~Tls() { SSL_free(ssl); }
+  Tls(const Tls&) = delete;
+  Tls& operator=(const Tls&) = delete;
+
+  // What the engine wrote for the peer, appended to `to` (engine held).
+  void take_output(std::vector<std::byte>& to) {
+    const std::size_t n = BIO_ctrl_pending(out);
+    if (n == 0) return;
+    const std::size_t at = to.size();
+    to.resize(at + n);
+    const int got = BIO_read(out, to.data() + at, static_cast<int>(n));
+    to.resize(at + static_cast<std::size_t>(std::max(got, 0)));
+  }
+  // Encrypts `plain` onto `to` (engine held). False, with `error` set, if the engine failed.
+  bool seal(std::span<const std::byte> plain, std::vector<std::byte>& to) {
+    std::size_t done = 0;
+    while (done < plain.size()) {
+      ERR_clear_error();
+      const int chunk = static_cast<int>(std::min<std::size_t>(plain.size() - done, 1 << 30));
+      const int n = SSL_write(ssl, plain.data() + done, chunk);
+      if (n <= 0) {
+        error = describe_error(n, "TLS write");
+        return false;
+      }
+      done += static_cast<std::size_t>(n);
+    }
+    take_output(to);
+    return true;
+  }
+  // Decrypts into [to, to + space) what the engine holds (engine held): the bytes written, 0
+  // when it needs more from the peer, -1 at the peer's close_notify, -2 on an error (`error`).
+  std::ptrdiff_t open_some(std::byte* to, std::size_t space) {
+    std::size_t got = 0;
+    input_left = true;  // unless the engine runs out of input below
+    while (got < space) {
+      ERR_clear_error();
+      const int n = SSL_read(ssl, to + got, static_cast<int>(std::min<std::size_t>(space - got, 1 << 30)));
+      if (n > 0) {
+        got += static_cast<std::size_t>(n);
+        continue;
+      }
+      const int e = SSL_get_error(ssl, n);
+      if (e == SSL_ERROR_WANT_READ) {
+        input_left = false;
+        break;
+      }
+      if (got > 0) break;  // the close or the error is reported by the next call
+      if (e == SSL_ERROR_ZERO_RETURN) return -1;
+      error = describe_error(n, "TLS read");
+      return -2;
+    }
+    return static_cast<std::ptrdiff_t>(got);
+  }
+  // Reads into rbuf_ after rend_ (read_mutex_ held), as ::recv would: what the engine holds
+  // first, then what the socket has. The plaintext bytes; 0 at the end of the stream (the
+  // peer's close_notify, or its end of the TCP stream); -1 with errno EAGAIN when nothing
+  // decryptable came yet, EPROTO when the engine failed (`error`), or the socket's error.
+  ssize_t read(Connection& c);
+  // Sends a one-frame message from the sending thread (send_mutex_ held, no write in flight):
+  // sealed here; what the kernel does not take at once is written next by the io thread.
+  // False when it must be queued instead (earlier ciphertext waits, or the engine failed).
+  bool direct_send(Connection& c, const FrameHeaderBytes& header, const detail::OutgoingMessage& msg);
+  bool holds_input() {
+    std::lock_guard lock(engine);
+    return input_left;
+  }
+  bool has_pending() {
+    std::lock_guard lock(engine);
+    return !pending.empty();
+  }
+  std::string describe_error(int result, const char* what) const {
+    const int e = SSL_get_error(ssl, result);
+    const unsigned long code = ERR_peek_last_error();
+    if (code != 0) {
+      const char* reason = ERR_reason_error_string(code);
+      return reason != nullptr ? reason : fmt::format("{} failed (OpenSSL error {:#x})", what, code);
+    }
+    return fmt::format("{} failed (SSL error {})", what, e);
+  }
+
+  SSL* ssl;
+  BIO* in;   // ciphertext from the peer, for the engine to read
+  BIO* out;  // ciphertext the engine wrote, for the socket
+  std::mutex engine;
+  // The engine may hold whole records not decrypted yet (the last open_some stopped for want of
+  // space, or the handshake's last read brought more): read them before waiting on the socket.
+  bool input_left = false;
+  std::vector<std::byte> pending;  // ciphertext not yet handed to the socket, in order (engine)
+  std::string error;               // the last engine failure (engine)
+  // read_mutex_ (or the handshake): ciphertext received from the socket. Not zero-filled: an
+  // idle connection never touches most of it.
+  static constexpr std::size_t kReceiveSize = 64 * 1024;
+  std::unique_ptr<std::byte[]> received = std::make_unique_for_overwrite<std::byte[]>(kReceiveSize);
+  // io thread while writing_: the batch's plaintext gathered into one buffer (a record per
+  // 9-byte header would cost more than the copy), and the ciphertext being written.
+  std::vector<std::byte> gathered;
+  std::vector<std::byte> writing;
+  std::size_t writing_plain = 0;  // the plaintext bytes `writing` carries
+  // The handshake (io thread): a step of the engine, its output written, the peer's read.
+  void handshake_step(const std::shared_ptr<Connection>& self);
+  void handshake_failed(Connection& c, const std::string& why);
+  void handshake_done(Connection& c);
+  std::vector<std::byte> handshake_out;
 };
 
 namespace {
@@ -159,7 +281,7 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
   batch_headers_.reserve(kMaxBatchFrames);
   batch_frames_picked_.reserve(kMaxBatchFrames);
   if (security.tls) {
-    tls_ = std::make_unique<Tls>(socket_, *security.tls);
+    tls_ = std::make_unique<Tls>(*security.tls);
     if (role_ == ConnectionRole::client) {
       const std::string& name = security.server_name;
       // SNI, and the name the server's certificate must carry (an IP address is matched
@@ -167,11 +289,17 @@ Connection::Connection(std::shared_ptr<asio::io_context> io, asio::ip::tcp::sock
       std::error_code address_ec;
       (void)asio::ip::make_address(name, address_ec);
       if (address_ec) {  // SSL_set_tlsext_host_name, without the macro's C cast
-        SSL_ctrl(tls_->stream.native_handle(), SSL_CTRL_SET_TLSEXT_HOSTNAME,
-                 TLSEXT_NAMETYPE_host_name, const_cast<char*>(name.c_str()));
+        SSL_ctrl(tls_->ssl, SSL_CTRL_SET_TLSEXT_HOSTNAME, TLSEXT_NAMETYPE_host_name,
+                 const_cast<char*>(name.c_str()));
+        SSL_set_hostflags(tls_->ssl, X509_CHECK_FLAG_NO_PARTIAL_WILDCARDS);
+        SSL_set1_host(tls_->ssl, name.c_str());
+      } else {
+        X509_VERIFY_PARAM_set1_ip_asc(SSL_get0_param(tls_->ssl), name.c_str());
       }
-      tls_->stream.set_verify_mode(asio::ssl::verify_peer);
-      tls_->stream.set_verify_callback(asio::ssl::host_name_verification(name));
+      SSL_set_verify(tls_->ssl, SSL_VERIFY_PEER, nullptr);
+      SSL_set_connect_state(tls_->ssl);
+    } else {
+      SSL_set_accept_state(tls_->ssl);
     }
   }
 }
@@ -186,36 +314,155 @@ void Connection::start() {
     begin_handshake();
     return;
   }
-  tls_->stream.async_handshake(
-      role_ == ConnectionRole::client ? asio::ssl::stream_base::client
-                                      : asio::ssl::stream_base::server,
-      [self = shared_from_this()](const std::error_code& ec) {
-        if (self->state_.load() == State::closed) return;
-        if (ec) {
-          const long verify = SSL_get_verify_result(self->tls_->stream.native_handle());
-          const std::string detail =
-              verify != X509_V_OK ? fmt::format(" ({})", X509_verify_cert_error_string(verify))
-                                  : std::string();
-          const std::string reason = fmt::format("TLS handshake with {} failed: {}{}",
-                                                 self->remote_address_, ec.message(), detail);
-          // A server hears of every client that fails (a wrong CA, plaintext, a scanner), so
-          // the line is rate-limited per address.
-          const bool server = self->role_ == ConnectionRole::server;
-          if (server) {
-            if (auto held = self->limits_->tls_failures.admit(self->remote_ip_)) {
-              self->log_->warn("{}{}", reason, held_back(*held));
-            }
-          }
-          self->fail(ErrorKind::refused, reason, server);
-          return;
-        }
-        std::string name = certificate_common_name(self->tls_->stream.native_handle());
-        {
-          std::lock_guard lock(self->info_mutex_);
-          self->peer_certificate_name_ = std::move(name);
-        }
-        self->begin_handshake();
-      });
+  tls_->handshake_step(shared_from_this());
+}
+
+// The TLS handshake, on the io thread before anything else reads or writes the socket: the
+// engine's output written whole, then the peer's answer read, until the engine is done.
+void Connection::Tls::handshake_step(const std::shared_ptr<Connection>& self) {
+  Connection& c = *self;
+  if (c.state_.load() == State::closed) return;
+  int result = 0;
+  std::string failure;
+  {
+    std::lock_guard lock(engine);
+    ERR_clear_error();
+    result = SSL_do_handshake(ssl);
+    if (result != 1 && SSL_get_error(ssl, result) != SSL_ERROR_WANT_READ) {
+      failure = describe_error(result, "TLS handshake");
+    }
+    handshake_out.clear();
+    take_output(handshake_out);  // an alert too, if it failed
+  }
+  const auto next = [self, result, failure] {
+    Connection& conn = *self;
+    if (conn.state_.load() == State::closed) return;
+    if (!failure.empty()) return conn.tls_->handshake_failed(conn, failure);
+    if (result == 1) return conn.tls_->handshake_done(conn);
+    conn.socket_.async_read_some(asio::buffer(conn.tls_->received.get(), Tls::kReceiveSize),
+                                 [self](const std::error_code& ec, std::size_t n) {
+                                   Connection& reader = *self;
+                                   if (reader.state_.load() == State::closed) return;
+                                   if (ec) {
+                                     return reader.tls_->handshake_failed(
+                                         reader, ec == asio::error::eof ? "the peer closed the connection" : ec.message());
+                                   }
+                                   reader.note_received(n);
+                                   {
+                                     std::lock_guard lock(reader.tls_->engine);
+                                     BIO_write(reader.tls_->in, reader.tls_->received.get(), static_cast<int>(n));
+                                   }
+                                   reader.tls_->handshake_step(self);
+                                 });
+  };
+  if (handshake_out.empty()) return next();
+  asio::async_write(c.socket_, asio::buffer(handshake_out),
+                    [self, next, failed = !failure.empty()](const std::error_code& ec, std::size_t n) {
+                      Connection& writer = *self;
+                      if (writer.state_.load() == State::closed) return;
+                      if (ec && !failed) return writer.tls_->handshake_failed(writer, ec.message());
+                      {
+                        std::lock_guard lock(writer.send_mutex_);
+                        writer.stats_.bytes_sent += n;
+                      }
+                      next();
+                    });
+}
+
+void Connection::Tls::handshake_failed(Connection& c, const std::string& why) {
+  long verify = X509_V_OK;
+  {
+    std::lock_guard lock(engine);
+    verify = SSL_get_verify_result(ssl);
+  }
+  const std::string detail =
+      verify != X509_V_OK ? fmt::format(" ({})", X509_verify_cert_error_string(verify)) : std::string();
+  const std::string reason =
+      fmt::format("TLS handshake with {} failed: {}{}", c.remote_address_, why, detail);
+  // A server hears of every client that fails (a wrong CA, plaintext, a scanner), so the line
+  // is rate-limited per address.
+  const bool server = c.role_ == ConnectionRole::server;
+  if (server) {
+    if (auto held = c.limits_->tls_failures.admit(c.remote_ip_)) {
+      c.log_->warn("{}{}", reason, held_back(*held));
+    }
+  }
+  c.fail(ErrorKind::refused, reason, server);
+}
+
+void Connection::Tls::handshake_done(Connection& c) {
+  std::string name;
+  {
+    std::lock_guard lock(engine);
+    name = certificate_common_name(ssl);
+  }
+  {
+    std::lock_guard lock(c.info_mutex_);
+    c.peer_certificate_name_ = std::move(name);
+  }
+  std::vector<std::byte>().swap(handshake_out);
+  {
+    std::lock_guard lock(engine);
+    input_left = true;  // the handshake's last read may have brought the first records
+  }
+  c.begin_handshake();
+}
+
+ssize_t Connection::Tls::read(Connection& c) {
+  std::byte* to = c.rbuf_.get() + c.rend_;
+  const std::size_t space = kReadBufferSize - c.rend_;
+  for (;;) {
+    std::ptrdiff_t got = 0;
+    {
+      std::lock_guard lock(engine);
+      if (!error.empty()) {
+        errno = EPROTO;
+        return -1;
+      }
+      got = open_some(to, space);
+      if (BIO_ctrl_pending(out) > 0) {  // the engine answered the peer (a key update, say)
+        take_output(pending);
+        asio::post(c.socket_.get_executor(), [self = c.shared_from_this()] {
+          std::lock_guard send_lock(self->send_mutex_);
+          if (self->send_open_) self->schedule_write_locked();
+        });
+      }
+    }
+    if (got > 0) return got;
+    if (got == -1) return 0;
+    if (got == -2) {
+      errno = EPROTO;
+      return -1;
+    }
+    const ssize_t n = ::recv(c.socket_.native_handle(), received.get(), Tls::kReceiveSize, MSG_DONTWAIT);
+    if (n <= 0) return n;
+    std::lock_guard lock(engine);
+    BIO_write(in, received.get(), static_cast<int>(n));
+  }
+}
+
+bool Connection::Tls::direct_send(Connection& c, const FrameHeaderBytes& header,
+                                  const detail::OutgoingMessage& msg) {
+  thread_local std::vector<std::byte> plain;
+  thread_local std::vector<std::byte> sealed;
+  std::lock_guard lock(engine);
+  if (!pending.empty() || !error.empty()) return false;
+  plain.assign(header.begin(), header.end());
+  plain.insert(plain.end(), msg.payload.begin(), msg.payload.end());
+  sealed.clear();
+  if (!seal(plain, sealed)) return false;  // the io thread meets the failure and reports it
+  const ssize_t n = ::send(c.socket_.native_handle(), sealed.data(), sealed.size(), MSG_DONTWAIT | MSG_NOSIGNAL);
+  const std::size_t written = n > 0 ? static_cast<std::size_t>(n) : 0;
+  if (written < sealed.size()) {
+    pending.insert(pending.end(), sealed.begin() + static_cast<std::ptrdiff_t>(written), sealed.end());
+    c.schedule_write_locked();
+  }
+  c.queued_bytes_ -= msg.payload.size();
+  ++c.stats_.frames_sent;
+  c.stats_.bytes_sent += plain.size();
+  if (plain.capacity() > 64 * 1024) std::vector<std::byte>().swap(plain);  // one large frame
+  if (sealed.capacity() > 64 * 1024) std::vector<std::byte>().swap(sealed);
+  return true;
 }
 
 void Connection::begin_handshake() {
@@ -301,7 +548,7 @@ void Connection::send(std::vector<std::byte> message, SendHandler on_sent, bool 
   // thread; the io thread is not woken at all when the kernel takes the whole frame. Not while
   // the io thread is handling what one read brought: the replies to a batch of requests then
   // leave together in one write after it.
-  if (!tls_ && !writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
+  if (!writing_ && !handling_read_.load(std::memory_order_relaxed) && control_.empty() &&
       scheduler_->empty() &&
       msg.payload.size() <= kMaxFramePayload && !msg.on_sent && try_direct_send_locked(msg)) {
     // Written, but into a link the peer had closed while this process did not run (it stopped
@@ -326,6 +573,7 @@ bool Connection::try_direct_send_locked(detail::OutgoingMessage& msg) {
   h.final = true;
   h.code = FrameCode::data;
   auto header = encode_header(h);
+  if (tls_) return tls_->direct_send(*this, header, msg);
   iovec iov[2] = {{header.data(), header.size()}, {msg.payload.data(), msg.payload.size()}};
   msghdr mh{};
   mh.msg_iov = iov;
@@ -410,7 +658,7 @@ void Connection::write_batch() {
     batch_payload_bytes_ += frame.payload.size();
     ++batch_frames_;
   }
-  if (batch_.empty()) {
+  if (batch_.empty() && !(tls_ && tls_->has_pending())) {
     writing_ = false;
     return;
   }
@@ -419,17 +667,38 @@ void Connection::write_batch() {
   auto on_done = [self = shared_from_this()](const std::error_code& ec, std::size_t n) {
     self->on_written(ec, n);
   };
-  if (tls_ && batch_.size() == 1) {  // one buffer (a control frame, the rest of a frame): as it is
-    asio::async_write(tls_->stream, batch_.front(), std::move(on_done));
-  } else if (tls_) {
-    // Gathered into one buffer: an SSL stream writes one record per buffer of a sequence, and
-    // a record per 9-byte header would cost more than this copy.
-    tls_->out.resize(asio::buffer_size(batch_));
-    asio::buffer_copy(asio::buffer(tls_->out), batch_);
-    asio::async_write(tls_->stream, asio::buffer(tls_->out), std::move(on_done));
-  } else {
+  if (!tls_) {
     asio::async_write(socket_, batch_, std::move(on_done));
+    return;
   }
+  // Sealed after what the engine produced before (a direct send's rest, an answer to the
+  // peer), in the order it was produced.
+  std::string failure;
+  {
+    std::lock_guard engine(tls_->engine);
+    tls_->writing.clear();
+    tls_->writing.swap(tls_->pending);
+    tls_->writing_plain = asio::buffer_size(batch_);
+    if (batch_.size() == 1) {  // one buffer (a control frame, the rest of a frame): as it is
+      const auto& b = batch_.front();
+      if (!tls_->seal({static_cast<const std::byte*>(b.data()), b.size()}, tls_->writing)) failure = tls_->error;
+    } else if (!batch_.empty()) {
+      // Gathered into one buffer: sealed buffer by buffer, a record per 9-byte header would
+      // cost more than this copy.
+      tls_->gathered.resize(tls_->writing_plain);
+      asio::buffer_copy(asio::buffer(tls_->gathered), batch_);
+      if (!tls_->seal(tls_->gathered, tls_->writing)) failure = tls_->error;
+    }
+  }
+  if (!failure.empty()) {  // fails the batch's messages and the connection
+    log_->warn("TLS error on the link to {}: {}", describe(), failure);
+    on_written(std::make_error_code(std::errc::protocol_error), 0);
+    return;
+  }
+  asio::async_write(socket_, asio::buffer(tls_->writing),
+                    [self = shared_from_this()](const std::error_code& ec, std::size_t) {
+                      self->on_written(ec, self->tls_->writing_plain);
+                    });
 }
 
 void Connection::on_written(const std::error_code& ec, std::size_t n) {
@@ -480,16 +749,12 @@ void Connection::read_more() {
     rend_ -= rbegin_;
     rbegin_ = 0;
   }
-  if (tls_) {
-    const auto space = asio::buffer(rbuf_.get() + rend_, kReadBufferSize - rend_);
-    tls_->stream.async_read_some(space, [self = shared_from_this()](const std::error_code& ec,
-                                                                    std::size_t n) {
-      self->on_read(ec, n);
-    });
+  if (tls_ && tls_->holds_input()) {  // records the engine has not decrypted yet: no waiting
+    asio::post(socket_.get_executor(), [self = shared_from_this()] { self->resume_reading(); });
     return;
   }
-  // Plaintext: wait until the socket has bytes (a peek reads nothing), then read them under
-  // read_mutex_, so that the io thread and a direct reader never both take from the stream.
+  // Wait until the socket has bytes (a peek reads nothing), then read them under read_mutex_,
+  // so that the io thread and a direct reader never both take from the stream.
   if (peek_armed_) return;
   peek_armed_ = true;
   socket_.async_receive(asio::buffer(&peek_byte_, 1), asio::socket_base::message_peek,
@@ -520,8 +785,9 @@ void Connection::read_available() {
     rend_ -= rbegin_;
     rbegin_ = 0;
   }
-  const ssize_t n = ::recv(socket_.native_handle(), rbuf_.get() + rend_, kReadBufferSize - rend_,
-                           MSG_DONTWAIT);
+  const ssize_t n = tls_ ? tls_->read(*this)
+                        : ::recv(socket_.native_handle(), rbuf_.get() + rend_, kReadBufferSize - rend_,
+                                 MSG_DONTWAIT);
   if (n > 0) {
     on_read({}, static_cast<std::size_t>(n));
   } else if (n == 0) {
@@ -533,6 +799,14 @@ void Connection::read_available() {
     } else {
       read_more();  // a direct reader took what there was
     }
+  } else if (tls_ && errno == EPROTO) {
+    handle_buffered(false);  // what was decrypted before
+    std::string why;
+    {
+      std::lock_guard lock(tls_->engine);
+      why = tls_->error;
+    }
+    fail(ErrorKind::bad_data, fmt::format("TLS error from {}: {}", describe(), why));
   } else {
     on_read(std::error_code(errno, std::system_category()), 0);
   }
@@ -543,6 +817,12 @@ void Connection::resume_reading() {
   std::unique_lock lock(read_mutex_);
   if (direct_reader_) {
     io_parked_ = true;
+    return;
+  }
+  if (rbegin_ == rend_ && !(tls_ && tls_->holds_input())) {
+    // A direct reader took all there was (its reply): wait for the socket again, without a
+    // read that would find nothing while the next caller wants the socket.
+    read_more();
     return;
   }
   read_available();
@@ -563,7 +843,7 @@ void Connection::note_received(std::size_t n) {
 void Connection::on_read(const std::error_code& ec, std::size_t n) {
   if (state_.load() == State::closed) return;
   if (ec) {
-    const bool closed = ec == asio::error::eof || ec == asio::ssl::error::stream_truncated;
+    const bool closed = ec == asio::error::eof;
     fail(ErrorKind::disconnected, closed ? fmt::format("{} closed the connection", describe())
                                       : fmt::format("read from {} failed: {}", describe(),
                                                     ec.message()));
@@ -619,11 +899,12 @@ void Connection::handle_buffered(bool read_next) {
 bool Connection::read_directly(std::chrono::steady_clock::time_point until,
                                const std::function<bool()>& answered,
                                const std::function<bool(std::span<const std::byte>)>& take) {
-  if (tls_ || options_.activity) return false;
+  if (options_.activity) return false;
   {
     std::unique_lock lock(read_mutex_, std::try_to_lock);
     if (!lock || direct_reader_ || read_closed_ || state_.load() != State::open ||
-        close_after_flush_ || rbegin_ != rend_ || incoming_count_.load() != 0 || answered()) {
+        close_after_flush_ || rbegin_ != rend_ || incoming_count_.load() != 0 || answered() ||
+        (tls_ && tls_->holds_input())) {
       return false;
     }
     // Large messages on their way out wait for the peer's acks: those are read by the io
@@ -648,8 +929,9 @@ bool Connection::read_directly(std::chrono::steady_clock::time_point until,
     if (ready <= 0) continue;
     std::lock_guard lock(read_mutex_);
     if (read_closed_ || state_.load() != State::open) break;
-    const ssize_t n = ::recv(socket_.native_handle(), rbuf_.get() + rend_,
-                             kReadBufferSize - rend_, MSG_DONTWAIT);
+    const ssize_t n = tls_ ? tls_->read(*this)
+                          : ::recv(socket_.native_handle(), rbuf_.get() + rend_, kReadBufferSize - rend_,
+                                   MSG_DONTWAIT);
     if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) continue;
     handed_over = true;  // unless the first frame is the message `take` waits for
     if (n <= 0) break;   // the end of the stream, or an error: the io thread reports it
@@ -679,7 +961,7 @@ bool Connection::read_directly(std::chrono::steady_clock::time_point until,
   // The socket goes back to the io thread, with whatever was read and not taken.
   std::lock_guard lock(read_mutex_);
   direct_reader_ = false;
-  if (io_parked_ || rbegin_ != rend_) {
+  if (io_parked_ || rbegin_ != rend_ || (tls_ && tls_->holds_input())) {
     io_parked_ = false;
     asio::post(socket_.get_executor(), [self = shared_from_this()] { self->resume_reading(); });
   }

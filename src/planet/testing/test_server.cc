@@ -1,6 +1,7 @@
 // A PLANET server process for tests and benchmarks: serves the Echo servant at /echo and prints
 // "READY <port>" on stdout once it listens. With --tick-every-ms it also serves a TickSource at
-// /ticks and publishes a Tick (seq 0, 1, 2, ...) to its subscribers that often.
+// /ticks and publishes a Tick (seq 0, 1, 2, ...) to its subscribers that often; with --tls-dir
+// it listens with TLS.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <stop_token>
@@ -12,6 +13,7 @@
 #include "icars/planet/communicator.h"
 #include "icars/planet/publisher.h"
 #include "test_interfaces.h"
+#include "tls_files.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"PLANET test server"};
@@ -27,6 +29,8 @@ int main(int argc, char** argv) {
   app.add_option("--heartbeat-timeout-ms", heartbeat_timeout_ms);
   app.add_option("--max-message", max_message, "max_message_size in bytes");
   app.add_option("--pun", pun);
+  std::string tls_dir;
+  app.add_option("--tls-dir", tls_dir, "listen with TLS: the server certificate of scripts/make-certs.sh's DIR");
   CLI11_PARSE(app, argc, argv);
 
   // Block the stop signals before any thread starts, so every thread inherits the mask.
@@ -42,6 +46,7 @@ int main(int argc, char** argv) {
   options.connection.max_message_size = max_message;
   options.pun = pun;
   options.name = "test-server";
+  if (!tls_dir.empty()) options.tls = planet_test::server_tls(tls_dir);
   icars::planet::Communicator communicator(options);
   communicator.adapter().add("/echo", planet_test::make_echo_servant(communicator));
   communicator.adapter().add("/streams", planet_test::make_streams_servant(communicator));
