@@ -464,12 +464,10 @@ void Communicator::read_reply(const Link& link, std::uint32_t request_id,
   if (!c) return;
   c->read_directly(until, answered, [&](std::span<const std::byte> m) {
     // Only the reply (or error) to this call; anything else is the io thread's to handle.
-    if (m.size() < 5) return false;
-    const auto code = static_cast<RmiCode>(m[0]);
-    if ((code != RmiCode::reply && code != RmiCode::error) ||
-        detail::load_be32(m.data() + 1) != request_id) {
-      return false;
-    }
+    if (m.size() < 5) return false;  // code and request id, read as handle_message reads them
+    Reader head(m);
+    const auto code = static_cast<RmiCode>(head.u8());
+    if ((code != RmiCode::reply && code != RmiCode::error) || head.u32() != request_id) return false;
     handle_message(c, m);
     return true;
   });

@@ -46,6 +46,15 @@ std::int64_t ms(std::chrono::steady_clock::duration d) {
   return std::chrono::duration_cast<std::chrono::milliseconds>(d).count();
 }
 
+// A full read buffer moves its unhandled bytes to the front: a complete frame always fits
+// after compaction.
+void compact_when_full(std::byte* buffer, std::size_t& begin, std::size_t& end) {
+  if (end != kReadBufferSize) return;
+  std::memmove(buffer, buffer + begin, end - begin);
+  end -= begin;
+  begin = 0;
+}
+
 std::vector<std::byte> frame_bytes(const FrameHeader& h, std::span<const std::byte> payload) {
   std::vector<std::byte> out(kFrameHeaderSize + payload.size());
   const auto header = encode_header(h);
@@ -142,6 +151,10 @@ struct Connection::Tls {
     std::size_t got = 0;
     input_left = true;  // unless the engine runs out of input below
     while (got < space) {
+      if (got > 0 && SSL_pending(ssl) == 0 && BIO_ctrl_pending(in) == 0) {
+        input_left = false;  // every byte received is decrypted: no SSL_read to be told so
+        break;
+      }
       ERR_clear_error();
       const int n = SSL_read(ssl, to + got, static_cast<int>(std::min<std::size_t>(space - got, 1 << 30)));
       if (n > 0) {
@@ -424,7 +437,8 @@ ssize_t Connection::Tls::read(Connection& c) {
         errno = EPROTO;
         return -1;
       }
-      got = open_some(to + total, space - total);
+      // Nothing decryptable is held before the first read of the socket (open_some said so).
+      got = total == 0 && !input_left && BIO_ctrl_pending(in) == 0 ? 0 : open_some(to + total, space - total);
       if (BIO_ctrl_pending(out) > 0) {  // the engine answered the peer (a key update, say)
         take_output(pending);
         asio::post(c.socket_.get_executor(), [self = c.shared_from_this()] {
@@ -755,11 +769,7 @@ void Connection::on_written(const std::error_code& ec, std::size_t n) {
 
 void Connection::read_more() {
   if (state_.load() == State::closed || close_after_flush_) return;
-  if (rend_ == kReadBufferSize) {  // a complete frame always fits after compaction
-    std::memmove(rbuf_.get(), rbuf_.get() + rbegin_, rend_ - rbegin_);
-    rend_ -= rbegin_;
-    rbegin_ = 0;
-  }
+  compact_when_full(rbuf_.get(), rbegin_, rend_);
   if (tls_ && tls_->holds_input()) {  // records the engine has not decrypted yet: no waiting
     asio::post(socket_.get_executor(), [self = shared_from_this()] { self->resume_reading(); });
     return;
@@ -791,11 +801,7 @@ void Connection::on_readable(const std::error_code& ec) {
 }
 
 void Connection::read_available() {
-  if (rend_ == kReadBufferSize) {
-    std::memmove(rbuf_.get(), rbuf_.get() + rbegin_, rend_ - rbegin_);
-    rend_ -= rbegin_;
-    rbegin_ = 0;
-  }
+  compact_when_full(rbuf_.get(), rbegin_, rend_);
   const ssize_t n = tls_ ? tls_->read(*this)
                         : ::recv(socket_.native_handle(), rbuf_.get() + rend_, kReadBufferSize - rend_,
                                  MSG_DONTWAIT);

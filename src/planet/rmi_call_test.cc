@@ -15,6 +15,7 @@
 #include "child_process.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/proxy.h"
+#include "call_race.h"
 #include "test_interfaces.h"
 
 namespace icars::planet {
@@ -250,32 +251,10 @@ TEST_F(RmiCall, RepliesReadByCallersAndByTheIoThreadRaceWithoutLossOrMixUp) {
 
   constexpr int kThreads = 4;
   constexpr int kCalls = 400;
-  std::atomic<int> wrong{0};
-  std::atomic<int> async_done{0};
-  std::atomic<int> async_ok{0};
-  std::vector<std::thread> callers;
-  for (int t = 0; t < kThreads; ++t) {
-    callers.emplace_back([&, t] {
-      for (int i = 0; i < kCalls; ++i) {
-        const std::string text = std::to_string(t) + ":" + std::to_string(i);
-        if (t == 0 && i % 20 == 0) {  // the server calls this client back during the call
-          if (echo().call(Echo::call_back, me, text) != "heard " + text) ++wrong;
-        } else if (echo().call(Echo::echo_string, text) != text) {
-          ++wrong;
-        }
-        if (t == 1) {  // replies nobody waits for on a thread
-          echo().async_call(Echo::echo_int, {i}, [&, i](std::exception_ptr e, std::int32_t v) {
-            if (!e && v == i) ++async_ok;
-            ++async_done;
-          });
-        }
-      }
-    });
-  }
-  for (auto& c : callers) c.join();
-  ASSERT_TRUE(planet_test::wait_until([&] { return async_done.load() == kCalls; }));
-  EXPECT_EQ(wrong.load(), 0);
-  EXPECT_EQ(async_ok.load(), kCalls);
+  const auto race = planet_test::race_calls(client_, peer_, me, kThreads, kCalls, false);
+  ASSERT_TRUE(race.async_all_done);
+  EXPECT_EQ(race.wrong, 0);
+  EXPECT_EQ(race.async_ok, kCalls);
   EXPECT_EQ(callbacks.load(), kCalls / 20);
   EXPECT_EQ(client_.pending_calls(), 0u);
   const auto after = stats_of(*peer_);

@@ -19,6 +19,7 @@
 #include "tls_files.h"
 #include "icars/planet/communicator.h"
 #include "icars/planet/proxy.h"
+#include "call_race.h"
 #include "test_interfaces.h"
 
 namespace icars::planet {
@@ -150,37 +151,10 @@ TEST(Tls, CallersAndTheIoThreadShareOneTlsEngineWithoutLossOrMixUp) {
 
   constexpr int kThreads = 4;
   constexpr int kCalls = 300;
-  std::atomic<int> wrong{0};
-  std::atomic<int> async_done{0};
-  std::atomic<int> async_ok{0};
-  std::vector<std::thread> callers;
-  for (int t = 0; t < kThreads; ++t) {
-    callers.emplace_back([&, t] {
-      Proxy echo(client, peer, "/echo");
-      for (int i = 0; i < kCalls; ++i) {
-        const std::string text = std::to_string(t) + ":" + std::to_string(i);
-        if (t == 0 && i % 20 == 0) {  // the server calls this client back during the call
-          if (echo.call(Echo::call_back, me, text) != "heard " + text) ++wrong;
-        } else if (t == 2 && i % 30 == 0) {  // a message of many records, on the io thread's path
-          Binary big{std::vector<std::byte>((1u << 20) + static_cast<std::size_t>(i), std::byte{0})};
-          for (std::size_t k = 0; k < big.bytes.size(); k += 4093) big.bytes[k] = static_cast<std::byte>(k + static_cast<std::size_t>(i));
-          if (echo.call(Echo::echo_binary, big) != big) ++wrong;
-        } else if (echo.call(Echo::echo_string, text) != text) {
-          ++wrong;
-        }
-        if (t == 1) {  // replies nobody waits for on a thread
-          echo.async_call(Echo::echo_int, {i}, [&, i](std::exception_ptr e, std::int32_t v) {
-            if (!e && v == i) ++async_ok;
-            ++async_done;
-          });
-        }
-      }
-    });
-  }
-  for (auto& c : callers) c.join();
-  ASSERT_TRUE(planet_test::wait_until([&] { return async_done.load() == kCalls; }, 30s));
-  EXPECT_EQ(wrong.load(), 0);
-  EXPECT_EQ(async_ok.load(), kCalls);
+  const auto race = planet_test::race_calls(client, peer, me, kThreads, kCalls, true);
+  ASSERT_TRUE(race.async_all_done);
+  EXPECT_EQ(race.wrong, 0);
+  EXPECT_EQ(race.async_ok, kCalls);
   EXPECT_EQ(callbacks.load(), kCalls / 20);
   EXPECT_EQ(client.pending_calls(), 0u);
   const auto after = stats_of(*peer);
