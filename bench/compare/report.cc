@@ -43,6 +43,7 @@ std::vector<Metric> make_metrics() {
       {"upload_8mib_mib_s", "8 MiB upload", "MiB/s", true, "upload", upload},
       {"hol_echo_ms", "large echo (HOL)", "ms", false, "head-of-line",
        Target{Target::Kind::times_raw_tcp, 1.5, "<= 1.5x raw"}},
+      {"hol_echo_cold_ms", "large echo, the first (cold memory)", "ms", false, "head-of-line", {}},
       {"hol_small_p50_us", "small call p50 during echo", "us", false, "head-of-line", {}},
       {"hol_small_p99_us", "small call p99 during echo", "us", false, "head-of-line", {}},
       {"hol_small_max_ms", "small call max during echo", "ms", false, "head-of-line",
