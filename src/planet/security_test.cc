@@ -78,14 +78,21 @@ bool wait_for_error(const Peer& peer, const std::string& text) {
       [&] { return peer.last_error().find(text) != std::string::npos; }, 20s);
 }
 
+// A TLS listener with the home's server certificate, and a client trusting the home's authority.
+CommunicatorOptions home_tls_server() {
+  CommunicatorOptions o;
+  o.tls = server_tls(Certificates::get().home);
+  return o;
+}
+CommunicatorOptions home_tls_client() {
+  CommunicatorOptions o;
+  o.tls = client_tls(Certificates::get().home);
+  return o;
+}
+
 TEST(Tls, CallsWorkOverAVerifiedTlsLink) {
-  const auto& certs = Certificates::get();
-  CommunicatorOptions so;
-  so.tls = server_tls(certs.home);
-  Server server(so);
-  CommunicatorOptions co;
-  co.tls = client_tls(certs.home);
-  Communicator client(co);
+  Server server(home_tls_server());
+  Communicator client(home_tls_client());
   auto peer = client.connect("127.0.0.1", server.port);
   ASSERT_TRUE(peer->wait_connected(20s)) << peer->last_error();
   ASSERT_TRUE(peer->connection()->is_tls());
@@ -109,9 +116,7 @@ TEST(Tls, ACallerSendsAndReadsItsOwnCallOverTls) {
   // In another process, as in RmiCall's plaintext twin: an in-process server's reply can beat
   // the caller to its socket on these two cores, and the io thread then reads it.
   auto server = planet_test::start_test_server({"--tls-dir", certs.home.string()});
-  CommunicatorOptions co;
-  co.tls = client_tls(certs.home);
-  Communicator client(co);
+  Communicator client(home_tls_client());
   auto peer = client.connect("127.0.0.1", server.port);
   ASSERT_TRUE(peer->wait_connected(20s)) << peer->last_error();
   Proxy echo(client, peer, "/echo");
@@ -130,13 +135,8 @@ TEST(Tls, ACallerSendsAndReadsItsOwnCallOverTls) {
 // calls to this client, messages of many records): one engine, every record in order, every
 // message handled once by the right party.
 TEST(Tls, CallersAndTheIoThreadShareOneTlsEngineWithoutLossOrMixUp) {
-  const auto& certs = Certificates::get();
-  CommunicatorOptions so;
-  so.tls = server_tls(certs.home);
-  Server server(so);
-  CommunicatorOptions co;
-  co.tls = client_tls(certs.home);
-  Communicator client(co);
+  Server server(home_tls_server());
+  Communicator client(home_tls_client());
   auto callback = std::make_shared<Servant>(std::string(planet_test::Callback::type_id));
   std::atomic<int> callbacks{0};
   callback->implement(planet_test::Callback::notify_me, [&](const std::string& text) {
