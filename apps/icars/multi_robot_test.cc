@@ -223,35 +223,65 @@ std::string night_losing_robot2(Loss loss) {
       with_fleet({kDeviceManager, "--house", kHouse, "--server", server, "--speedup", speed, "--epoch",
                   std::to_string(epoch), "--no-engines", "--no-simulator", "--devices", "robot2_wheels,robot2_camera"}));
 
-  // The moment of the kill: while robot2 holds a share of the patrol — once it has won a seeded
+  // The moment of the loss: while robot2 holds a share of the patrol — once it has won a seeded
   // random number of waypoints (1 to 3: in the first round or the second), a random part of a
-  // simulated second later (a leg takes 3 to 10 s).
+  // simulated second later (a leg takes 3 to 10 s, 10 to 33 ms here). The trace is followed as it
+  // grows (parsing all of it each time would lag a leg behind on a loaded machine), and robot2 is
+  // stopped first: it is lost only if it still holds a waypoint it won and has not reached,
+  // otherwise it goes on and the next waypoint it wins decides.
   const auto seed = static_cast<std::uint32_t>(std::random_device{}());
   std::mt19937 random(seed);
-  const auto awards = static_cast<std::size_t>(std::uniform_int_distribution<int>(1, 3)(random));
+  auto awards = static_cast<std::size_t>(std::uniform_int_distribution<int>(1, 3)(random));
   const auto extra = std::chrono::microseconds(
       static_cast<std::int64_t>(std::uniform_real_distribution<double>(0, 1)(random) * 1e6 / kSpeed));
-  SCOPED_TRACE(testing::Message() << "seed " << seed << ": robot2 killed once it won " << awards
+  SCOPED_TRACE(testing::Message() << "seed " << seed << ": robot2 lost once it won " << awards
                                   << " waypoints, " << extra.count() << " us later");
+  icars_test::JsonLinesTail tail(trace);
+  std::size_t won = 0;
+  std::map<std::string, int> won_at, reached_at;  // robot2's awards and arrivals, by waypoint
+  const auto follow = [&] {
+    try {
+      for (const auto& j : tail.read()) {
+        if (patrol_auction(j) && str(j, "outcome") == "awarded" && str(j, "robot") == "robot2") {
+          ++won;
+          ++won_at[str(j, "stop")];
+        } else if (str(j, "kind") == "event" && str(j, "event") == "WaypointReached" &&
+                   j.value(json::json_pointer("/properties/robot"), std::string()) == "robot2") {
+          ++reached_at[j.value(json::json_pointer("/properties/waypoint"), std::string())];
+        }
+      }
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "the trace is not JSON lines: " << e.what();
+    }
+  };
+  const auto holds_a_waypoint = [&] {
+    return std::any_of(won_at.begin(), won_at.end(), [&](const auto& w) { return w.second > reached_at[w.first]; });
+  };
   const auto deadline = std::chrono::steady_clock::now() + 240s;
   for (;;) {
     if (std::chrono::steady_clock::now() > deadline || mediator.exited()) {
       ADD_FAILURE() << "robot2 never got its share of the patrol\n" << icars_test::tail(mediator.stderr_text());
       return first_reason;
     }
-    const auto night = read_night(trace_of(trace));
-    const auto won = std::count_if(night.auctions.begin(), night.auctions.end(), [](const json& a) {
-      return str(a, "outcome") == "awarded" && str(a, "robot") == "robot2";
-    });
-    if (static_cast<std::size_t>(won) >= awards) break;
+    follow();
+    if (won >= awards && holds_a_waypoint()) {
+      std::this_thread::sleep_for(extra);
+      robot2.freeze();
+      // Arrivals robot2 reported before it stopped reach the trace in a few ms; this looks for
+      // 200 ms (a simulated minute, less than the two minutes that make a robot stalled).
+      const auto settled = std::chrono::steady_clock::now() + 200ms;
+      while (std::chrono::steady_clock::now() < settled) {
+        follow();
+        std::this_thread::sleep_for(5ms);
+      }
+      if (holds_a_waypoint()) break;
+      robot2.thaw();
+      awards = won + 1;
+    }
     std::this_thread::sleep_for(1ms);
   }
-  std::this_thread::sleep_for(extra);
-  if (loss == Loss::killed) {
-    robot2.signal(SIGKILL);
-  } else {
-    robot2.freeze();
-  }
+  // Stopped now; killed, or left stopped.
+  if (loss == Loss::killed) robot2.signal(SIGKILL);
 
   const auto end = std::chrono::steady_clock::now() + 400s;
   while (!mediator.exited()) {

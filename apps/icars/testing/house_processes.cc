@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
 #include <random>
 #include <thread>
 
@@ -286,6 +287,24 @@ std::vector<json> read_json_lines(const fs::path& path) {
   for (std::string line; std::getline(in, line);) {
     if (!line.empty()) out.push_back(json::parse(line));
   }
+  return out;
+}
+
+std::vector<json> JsonLinesTail::read() {
+  std::vector<json> out;
+  std::ifstream in(path_, std::ios::binary);
+  if (!in) return out;
+  in.seekg(offset_);
+  std::string added((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  offset_ += static_cast<std::streamoff>(added.size());
+  partial_ += added;
+  std::size_t begin = 0;
+  for (auto end = partial_.find('\n'); end != std::string::npos; end = partial_.find('\n', begin)) {
+    if (end > begin) out.push_back(json::parse(partial_.begin() + static_cast<std::ptrdiff_t>(begin),
+                                               partial_.begin() + static_cast<std::ptrdiff_t>(end)));
+    begin = end + 1;
+  }
+  partial_.erase(0, begin);
   return out;
 }
 

@@ -189,6 +189,20 @@ PaperHouse load_paper_house(const std::string& house_file);
 
 using nlohmann::json;
 std::vector<json> read_json_lines(const fs::path& path);
+
+// A JSON-lines file read as it grows: each read() returns the records of the lines completed
+// since the last one (a line still being written waits for its newline), so following a long
+// trace costs what was added, not the whole file each time. Throws on a line that is not JSON.
+class JsonLinesTail {
+ public:
+  explicit JsonLinesTail(fs::path path) : path_(std::move(path)) {}
+  std::vector<json> read();
+
+ private:
+  fs::path path_;
+  std::streamoff offset_ = 0;
+  std::string partial_;  // the start of a line not yet finished
+};
 std::string str(const json& j, const char* key);  // "" when absent or not a string
 
 struct TaskRun {

@@ -165,9 +165,19 @@
 
   // ---------------------------------------------------------------- live mode
 
+  // The events are opened first and the snapshot fetched once the server has subscribed the page:
+  // a record made between the two is queued (app.pending) and applied after the snapshot if the
+  // snapshot does not hold it, so nothing from the run's start is missed. If the events cannot
+  // open, the page shows the snapshot it has, disconnected.
   async function startLive(snap) {
     app.pending = [];
-    openEvents();
+    if (await openEvents()) {
+      try {
+        snap = await getJSON("/api/snapshot");
+      } catch (e) {
+        console.warn("dashboard: the snapshot after subscribing failed (" + e.message + "); using the first");
+      }
+    }
     await loadLiveSnapshot(snap);
   }
 
@@ -217,10 +227,13 @@
     }
   }
 
+  // Resolves true once the server has subscribed the page, false if the first attempt failed.
   function openEvents() {
     const events = new EventSource("/api/events");
     app.events = events;
     let hadError = false;
+    let firstOpen;
+    const opened = new Promise((resolve) => { firstOpen = resolve; });
     events.addEventListener("record", (e) => {
       let r;
       try { r = JSON.parse(e.data); } catch (err) { console.error("dashboard: bad record", e.data); return; }
@@ -241,12 +254,15 @@
     });
     events.onopen = () => {
       setConnection("live");
+      firstOpen(true);
       if (hadError) { hadError = false; resync(); }   // records may have been missed meanwhile
     };
     events.onerror = () => {
       hadError = true;
+      firstOpen(false);
       setConnection("disconnected");
     };
+    return opened;
   }
 
   function setConnection(state) {
