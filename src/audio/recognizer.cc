@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <map>
 #include <random>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -132,6 +133,33 @@ std::vector<std::string> split(const std::string& text) {
   return words;
 }
 
+std::string join(const std::vector<std::string>& words) {
+  std::string out;
+  for (const auto& w : words) out += (out.empty() ? "" : " ") + w;
+  return out;
+}
+
+// Ways of saying a word the American dictionary (cmudict) leaves out, for the words of the
+// phrases (a short phrase said otherwise than the dictionary says loses to the filler loop):
+// the LOT vowel rounded, as British English and many voices say it, each AA also as AO ("stop"
+// S T AA P as S T AO P). (A final plosive released into a vowel, S T AA P AH, was tried too:
+// its last vowel stretched over the rest of "stop by the shop later".) Returns those not among
+// `known` (phone strings, as the dictionary has them).
+std::vector<std::string> pronunciation_variants(const std::vector<std::string>& known) {
+  std::vector<std::string> out;
+  for (const auto& pron : known) {
+    auto phones = split(pron);
+    if (std::find(phones.begin(), phones.end(), "AA") == phones.end()) continue;
+    std::replace(phones.begin(), phones.end(), std::string("AA"), std::string("AO"));
+    auto text = join(phones);
+    if (std::find(known.begin(), known.end(), text) == known.end() &&
+        std::find(out.begin(), out.end(), text) == out.end()) {
+      out.push_back(std::move(text));
+    }
+  }
+  return out;
+}
+
 // "<sil>", "[NOISE]", "<s>": what the decoder puts between words.
 bool is_filler_token(const char* word) { return word[0] == '<' || word[0] == '['; }
 
@@ -172,9 +200,7 @@ static std::string without_courtesy(const std::string& heard) {
   };
   if (words.size() > 1 && is(kCourtesyBefore, words.front())) words.erase(words.begin());
   if (words.size() > 1 && is(kCourtesyAfter, words.back())) words.pop_back();
-  std::string out;
-  for (const auto& w : words) out += (out.empty() ? "" : " ") + w;
-  return out;
+  return join(words);
 }
 
 struct Recognizer::Impl {
@@ -182,6 +208,10 @@ struct Recognizer::Impl {
   std::unique_ptr<cmd_ln_t, ConfigDeleter> config;
   std::unique_ptr<ps_decoder_t, DecoderDeleter> decoder;  // after `config`: freed before it
   std::vector<std::string> fillers;                       // kFillerWords in the dictionary
+  std::set<std::string> varied;                           // words add_variants has seen
+  std::map<std::string, std::string> rivals;              // grammar search → its filler search
+  std::map<std::string, std::string> filler_searches;     // filler words, joined → search name
+  int next_filler_search = 0;
 
   std::vector<std::string> phrases;
   std::map<std::string, std::string> phrase_of;  // spoken form → the phrase as given
@@ -206,6 +236,33 @@ struct Recognizer::Impl {
     return true;
   }
 
+  // The pronunciations the dictionary holds for `word`: "word", "word(2)", ...
+  std::vector<std::string> pronunciations(const std::string& word) {
+    std::vector<std::string> out;
+    for (int n = 1;; ++n) {
+      const std::string key = n == 1 ? word : fmt::format("{}({})", word, n);
+      char* phones = ps_lookup_word(decoder.get(), key.c_str());
+      if (phones == nullptr) break;
+      out.emplace_back(phones);
+      ckd_free(phones);
+    }
+    return out;
+  }
+
+  // Gives a phrase's word the pronunciation_variants of its dictionary pronunciations, as
+  // alternatives the grammar search uses (-fsgusealtpron); the result names the word either way.
+  void add_variants(const std::string& word) {
+    if (!varied.insert(word).second) return;
+    auto known = pronunciations(word);
+    for (const auto& variant : pronunciation_variants(known)) {
+      const auto key = fmt::format("{}({})", word, known.size() + 1);
+      if (ps_add_word(decoder.get(), key.c_str(), variant.c_str(), FALSE) < 0) {
+        throw AudioError("PocketSphinx did not accept the pronunciation " + variant + " of \"" + word + "\"");
+      }
+      known.push_back(variant);
+    }
+  }
+
   // Transition log probability in the FSG's units (log base of the decoder, times -lw).
   std::int32_t fsg_logp(double p) const {
     const float lw = cmd_ln_float32_r(config.get(), "-lw");
@@ -214,9 +271,9 @@ struct Recognizer::Impl {
   }
 
   // The filler loop from `from` into `loop` (which then loops on itself).
-  void add_filler_loop(fsg_model_t* fsg, int from, int loop) const {
-    const double n = static_cast<double>(fillers.size());
-    for (const auto& word : fillers) {
+  void add_filler_loop(fsg_model_t* fsg, int from, int loop, const std::vector<std::string>& words) const {
+    const double n = static_cast<double>(words.size());
+    for (const auto& word : words) {
       const int wid = fsg_model_word_add(fsg, word.c_str());
       fsg_model_trans_add(fsg, from, loop, fsg_logp(kFillerPrior / n), wid);
       fsg_model_trans_add(fsg, loop, loop, fsg_logp(kFillerGoOn / n), wid);
@@ -277,31 +334,81 @@ struct Recognizer::Impl {
     };
     courtesy(kStart, kBefore, kCourtesyBefore);
     courtesy(kAfter, kEnd, kCourtesyAfter);
-    add_filler_loop(fsg, kStart, kLoop);
+    const auto loop_words = fillers_beside(spoken);
+    add_filler_loop(fsg, kStart, kLoop, loop_words);
     fsg_model_null_trans_add(fsg, kLoop, kEnd, 0);
     add_search(fsg, name, "phrases " + key);
+    rivals[name] = filler_search(loop_words);
 
     if (grammar_order.size() >= kCachedGrammars) {
-      ps_unset_search(decoder.get(), grammars.at(grammar_order.front()).c_str());
+      const auto oldest = grammars.at(grammar_order.front());
+      ps_unset_search(decoder.get(), oldest.c_str());
       grammars.erase(grammar_order.front());
       grammar_order.pop_front();
+      // Its filler search goes too when no other grammar is measured against it.
+      const auto rival = rivals.at(oldest);
+      rivals.erase(oldest);
+      if (std::none_of(rivals.begin(), rivals.end(), [&](const auto& r) { return r.second == rival; })) {
+        ps_unset_search(decoder.get(), rival.c_str());
+        std::erase_if(filler_searches, [&](const auto& f) { return f.second == rival; });
+      }
     }
     grammars.emplace(key, name);
     grammar_order.push_back(key);
     search = name;
   }
 
-  // The filler loop alone: what the confidence of a phrase is measured against.
-  void ensure_filler_search() {
-    if (ps_get_fsg(decoder.get(), kFillerSearch) != nullptr) return;
+  // The filler words of the loop beside `spoken`: all of them but those a one-word phrase could
+  // be taken for when its sounds are blurred. A filler word whose phones are a subsequence of
+  // the phrase's (one of its pronunciations, with its variants) loses only what a room blurs
+  // first, a plosive's closure or release: in a reverberant room "stop" (S T AA P) was heard as
+  // "saw" (S AO) in 3 to 5 of 10 trials. Longer phrases keep every filler word: one word cannot
+  // stand for them, and dropping a word from a sequence only moves the loop to another.
+  std::vector<std::string> fillers_beside(const std::vector<std::string>& spoken) {
+    std::vector<std::vector<std::string>> single;  // the one-word phrases' pronunciations
+    for (const auto& form : spoken) {
+      if (split(form).size() != 1) continue;
+      for (const auto& pron : pronunciations(form)) single.push_back(split(pron));
+    }
+    if (single.empty()) return fillers;
+    const auto within = [](const std::vector<std::string>& part, const std::vector<std::string>& whole) {
+      std::size_t at = 0;
+      for (const auto& phone : whole) {
+        if (at < part.size() && part[at] == phone) ++at;
+      }
+      return at == part.size();
+    };
+    std::vector<std::string> out;
+    for (const auto& word : fillers) {
+      bool blurred = false;
+      for (const auto& pron : pronunciations(word)) {
+        const auto phones = split(pron);
+        // One phone ("a", AH) is inside nearly every word and stands for none of them.
+        for (const auto& phrase : single) {
+          blurred = blurred || (phones.size() >= 2 && phones.size() < phrase.size() && within(phones, phrase));
+        }
+      }
+      if (!blurred) out.push_back(word);
+    }
+    return out;
+  }
+
+  // The filler loop alone, of `words`: what the confidence of a phrase is measured against (the
+  // same words as the loop beside the phrases). One search per set of words.
+  std::string filler_search(const std::vector<std::string>& words) {
+    const auto key = join(words);
+    if (const auto hit = filler_searches.find(key); hit != filler_searches.end()) return hit->second;
+    const std::string name = std::string(kFillerSearch) + std::to_string(next_filler_search++);
     constexpr int kStart = 0, kEnd = 1, kLoop = 2;
-    fsg_model_t* fsg = fsg_model_init(kFillerSearch, ps_get_logmath(decoder.get()),
+    fsg_model_t* fsg = fsg_model_init(name.c_str(), ps_get_logmath(decoder.get()),
                                       cmd_ln_float32_r(config.get(), "-lw"), 3);
     fsg->start_state = kStart;
     fsg->final_state = kEnd;
-    add_filler_loop(fsg, kStart, kLoop);
+    add_filler_loop(fsg, kStart, kLoop, words);
     fsg_model_null_trans_add(fsg, kLoop, kEnd, 0);
-    add_search(fsg, kFillerSearch, "the filler words");
+    add_search(fsg, name, "the filler words");
+    filler_searches.emplace(key, name);
+    return name;
   }
 
   void use_language_model() {
@@ -461,8 +568,7 @@ struct Recognizer::Impl {
       // With a grammar the lattice posterior is always 1 (5prealpha's FSG lattices hold little
       // but the best path). The confidence is the margin of the phrase over the best sequence
       // of filler words on the same audio, per frame of the phrase's words.
-      ensure_filler_search();
-      const Pass rival = run(kFillerSearch);
+      const Pass rival = run(rivals.at(search));
       const double margin = !rival.complete ? kConfidenceScale * 10  // no other words fit at all
                                             : static_cast<double>(pass.score - rival.score) /
                                                   std::max(1, pass.speech_frames);
@@ -523,6 +629,9 @@ void Recognizer::set_phrases(const std::vector<std::string>& phrases) {
       }
     }
     if (phrase_of.emplace(form, phrase).second) spoken.push_back(form);
+  }
+  for (const auto& form : spoken) {
+    for (const auto& word : split(form)) impl_->add_variants(word);
   }
   if (spoken.empty()) {
     impl_->use_language_model();
