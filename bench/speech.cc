@@ -375,6 +375,9 @@ int main(int argc, char** argv) {
                  "RecognizerOptions::min_confidence")
       ->check(CLI::Range(0.0, 1.0));
   app.add_option("--model-dir", recognizer_options.model_dir, "RecognizerOptions::model_dir");
+  app.add_option("--room-rt60", recognizer_options.room_rt60,
+                 "RecognizerOptions::room_rt60: the reverberation the recognizer suppresses, s (0: none)")
+      ->check(CLI::Range(0.0, 5.0));
   app.add_option("--vad-threshold-db", vad.threshold_db, "VadOptions::threshold_db")
       ->check(CLI::Range(0.0, 40.0));
   app.add_option("--hangover-ms", vad.hangover_ms, "VadOptions::hangover_ms")

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <complex>
 #include <numbers>
@@ -230,6 +231,87 @@ AudioBlock room_noise(double seconds, int channels, const RoomSound& room, int s
     add_noise(room.noise_db >= 0.0 ? amplitude_of_spl(room.noise_db) : 0.0, rng, out[c]);
   }
   return interleave(out, sample_rate, nullptr);
+}
+
+Signal suppress_late_reverberation(const Signal& signal, const Dereverberation& options) {
+  if (!(options.rt60 >= 0.05 && options.rt60 <= 5.0)) {
+    throw AudioError(fmt::format("a reverberation time of {} s: dereverberation takes 0.05 to 5 s", options.rt60));
+  }
+  if (!(options.early >= 0.01 && options.early <= 0.5)) {
+    throw AudioError(fmt::format("an early part of {} s: dereverberation takes 0.01 to 0.5 s", options.early));
+  }
+  if (signal.sample_rate < kMinSampleRate || signal.sample_rate > kMaxSampleRate) {
+    throw AudioError(fmt::format("audio at {} Hz: dereverberation takes {}..{} Hz", signal.sample_rate,
+                                 kMinSampleRate, kMaxSampleRate));
+  }
+  const double rate = signal.sample_rate;
+  const std::size_t n = detail::fft_size_for(static_cast<std::size_t>(0.032 * rate));
+  const std::size_t hop = n / 4;
+  const std::size_t length = signal.samples.size();
+  if (length == 0) return signal;
+  // sqrt-Hann for analysis and synthesis; the overlap-add is divided by the windows' sum.
+  std::vector<float> window(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    window[i] = static_cast<float>(std::sqrt(0.5 - 0.5 * std::cos(2 * std::numbers::pi * static_cast<double>(i) / static_cast<double>(n))));
+  }
+  const std::size_t frames = (length + n) / hop + 1;  // frames start at -n + hop .. past the end
+  const auto start_of = [&](std::size_t f) { return static_cast<std::ptrdiff_t>(f * hop) - static_cast<std::ptrdiff_t>(n - hop); };
+  const auto delay = std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(options.early * rate / static_cast<double>(hop))));
+  const double decay_per_second = 3.0 * std::log(10.0) / options.rt60;  // amplitude: -60 dB in rt60
+  const double floor = std::clamp(options.floor, 0.0, 1.0);
+
+  detail::RealFft fft(n);
+  // The power of a reverberant tail in one frame and bin is as random as noise's, so the late
+  // part is predicted from three frames around `delay` before, each decayed by its own distance,
+  // and each bin's power may be averaged with its neighbours (smoothing_bins). (A recursive
+  // average over time would decay slower than the tail it must follow.)
+  const std::size_t spread = static_cast<std::size_t>(std::clamp(options.smoothing_bins, 0, 64));
+  const double beta = std::clamp(options.oversubtraction, 0.0, 10.0);
+  const std::size_t kept = delay + 2;  // frames of power kept: f - delay - 1 .. f
+  std::vector<std::vector<double>> power(kept, std::vector<double>(fft.bins()));
+  std::array<double, 3> share{};  // for frames f - delay - 1, f - delay, f - delay + 1
+  for (std::size_t j = 0; j < 3; ++j) {
+    share[j] = std::exp(-2.0 * decay_per_second * static_cast<double>((delay + 1 - j) * hop) / rate) / 3.0;
+  }
+  std::vector<std::complex<float>> spectrum(fft.bins());
+  std::vector<float> frame(n), out(n);
+  std::vector<double> sum(length, 0.0), weight(length, 0.0);
+  for (std::size_t f = 0; f < frames; ++f) {
+    const auto begin = start_of(f);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto at = begin + static_cast<std::ptrdiff_t>(i);
+      frame[i] = at >= 0 && static_cast<std::size_t>(at) < length ? signal.samples[static_cast<std::size_t>(at)] * window[i] : 0.0f;
+    }
+    fft.forward(frame, spectrum);
+    auto& now = power[f % kept];
+    for (std::size_t k = 0; k < fft.bins(); ++k) {
+      double total = 0;
+      const std::size_t from = k >= spread ? k - spread : 0, to = std::min(fft.bins() - 1, k + spread);
+      for (std::size_t j = from; j <= to; ++j) total += std::norm(spectrum[j]);
+      now[k] = total / static_cast<double>(to - from + 1);
+    }
+    // The first frames have no past to predict from: they pass as they are.
+    for (std::size_t k = 0; f > delay && k < fft.bins(); ++k) {
+      const double p = now[k];
+      if (p <= 0.0) continue;
+      double late = 0;
+      for (std::size_t j = 0; j < 3; ++j) late += share[j] * power[(f - delay - 1 + j) % kept][k];
+      const double gain = std::max(std::sqrt(std::max(0.0, 1.0 - beta * late / p)), floor);
+      spectrum[k] *= static_cast<float>(gain);
+    }
+    fft.inverse(spectrum, out);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto at = begin + static_cast<std::ptrdiff_t>(i);
+      if (at < 0 || static_cast<std::size_t>(at) >= length) continue;
+      sum[static_cast<std::size_t>(at)] += static_cast<double>(out[i]) * window[i] / static_cast<double>(n);
+      weight[static_cast<std::size_t>(at)] += static_cast<double>(window[i]) * window[i];
+    }
+  }
+  Signal result{signal.sample_rate, std::vector<float>(length)};
+  for (std::size_t i = 0; i < length; ++i) {
+    result.samples[i] = weight[i] > 1e-9 ? static_cast<float>(sum[i] / weight[i]) : 0.0f;
+  }
+  return result;
 }
 
 }  // namespace icars::audio

@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
+#include <vector>
 
 #include "icars/audio/direction.h"
 #include "test_signals.h"
@@ -161,6 +163,42 @@ TEST(Acoustics, TheSameSeedRendersTheSame) {
   room.seed = 43;
   EXPECT_NE(render(voice, paths, room).samples, a.samples);
   EXPECT_EQ(room_noise(0.5, 2, room).samples, room_noise(0.5, 2, room).samples);
+}
+
+// Noise bursts in a room at 2 m (the reverberant field four times the direct sound). With the
+// defaults, the tails between the bursts lose at least 3 dB and the bursts keep their level
+// within 1.5 dB; smoothed and oversubtracted, the tails lose at least 8 dB (measured 9.6 to 11)
+// and the bursts stay within 3 dB.
+TEST(Acoustics, SuppressingLateReverberationQuietensTheTailsAndKeepsTheSound) {
+  const Signal bursts = noise_bursts(3, 0.3, 0.5, -20, 9);  // 0.3 s on, 0.5 s off
+  RoomSound room = anechoic_and_quiet();
+  room.rt60 = 0.4;
+  const Signal heard = mix_down(render(bursts, {{2.0, 60}}, room, 0.0, 0.5));
+  const auto level = [](const Signal& x, double from, double seconds) {
+    double sum = 0;
+    const auto begin = samples_of(from), n = samples_of(seconds);
+    for (std::size_t i = begin; i < begin + n && i < x.samples.size(); ++i) sum += static_cast<double>(x.samples[i]) * x.samples[i];
+    return 10 * std::log10(sum / static_cast<double>(n) + 1e-20);
+  };
+  for (const auto& [options, tail_db, burst_db] : std::vector<std::tuple<Dereverberation, double, double>>{
+           {Dereverberation{.rt60 = 0.4}, 3.0, 1.5},
+           {Dereverberation{.rt60 = 0.4, .smoothing_bins = 3, .oversubtraction = 1.5}, 8.0, 3.0}}) {
+    const Signal cleaned = suppress_late_reverberation(heard, options);
+    ASSERT_EQ(cleaned.samples.size(), heard.samples.size());
+    ASSERT_EQ(cleaned.sample_rate, heard.sample_rate);
+    // The direct sound arrives 2 m / 343 m/s = 6 ms late; tails from 0.15 s after each burst.
+    for (const double burst : {0.0, 0.8, 1.6}) {
+      EXPECT_NEAR(level(cleaned, burst + 0.05, 0.2), level(heard, burst + 0.05, 0.2), burst_db)
+          << "burst at " << burst << " s, smoothing " << options.smoothing_bins;
+      EXPECT_LT(level(cleaned, burst + 0.45, 0.3), level(heard, burst + 0.45, 0.3) - tail_db)
+          << "tail after " << burst << " s, smoothing " << options.smoothing_bins;
+    }
+  }
+  // Nothing in, nothing out; a room it cannot be told is an error.
+  EXPECT_TRUE(suppress_late_reverberation(Signal{kSpeechRate, {}}).samples.empty());
+  EXPECT_THROW(suppress_late_reverberation(heard, {.rt60 = 0}), AudioError);
+  EXPECT_THROW(suppress_late_reverberation(heard, {.rt60 = 0.4, .early = 2.0}), AudioError);
+  EXPECT_THROW(suppress_late_reverberation(Signal{4000, heard.samples}), AudioError);
 }
 
 TEST(Acoustics, RefusesWhatItCannotRender) {

@@ -19,6 +19,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "icars/audio/acoustics.h"
 #include "icars/audio/resample.h"
 
 namespace icars::audio {
@@ -493,6 +494,16 @@ struct Recognizer::Impl {
     }
   }
 
+  // The room's late reverberation out of `utterance` (RecognizerOptions::room_rt60): in a room
+  // the tail of each phone covers the next (a plosive's closure, a fricative after a vowel).
+  void dereverberate() {
+    Signal x{kSpeechRate, {}};
+    x.samples.reserve(utterance.size());
+    for (const auto v : utterance) x.samples.push_back(static_cast<float>(v) / 32768.0f);
+    const Signal y = suppress_late_reverberation(x, Dereverberation{.rt60 = options.room_rt60});
+    for (std::size_t i = 0; i < utterance.size(); ++i) utterance[i] = to_pcm16(y.samples[i]);
+  }
+
   // Decodes `utterance` with the search `name`, the whole utterance at once (so that the
   // cepstral mean is the utterance's own, as the en-us model was trained: -cmn batch).
   Pass run(const std::string& name) {
@@ -552,6 +563,7 @@ struct Recognizer::Impl {
       r.decode_seconds = elapsed();
       return r;
     }
+    if (options.room_rt60 > 0) dereverberate();
     add_noise_floor(loudest);
     const Pass pass = run(search);
     r.heard = pass.words;
@@ -597,6 +609,10 @@ Recognizer::Recognizer(RecognizerOptions options) : impl_(std::make_unique<Impl>
       throw AudioError("PocketSphinx model missing: " + path +
                        " (apt install pocketsphinx-en-us, or set RecognizerOptions::model_dir)");
     }
+  }
+  if (options.room_rt60 != 0 && !(options.room_rt60 >= 0.05 && options.room_rt60 <= 5.0)) {
+    throw AudioError(fmt::format("RecognizerOptions::room_rt60 {} s: 0 (no dereverberation) or 0.05 to 5 s",
+                                 options.room_rt60));
   }
   impl_->options = std::move(options);
   std::vector<std::string> args = {"icars",  "-hmm",      hmm,      "-dict", dict,

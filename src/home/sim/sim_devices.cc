@@ -784,11 +784,13 @@ SimDeviceTypes make_home_types() {
     return std::make_shared<SimClockDevice>(c.world);
   }));
   types.add("SpeechEngine",
-            "a speech recognizer: speech_recognizer (home::SpeechRecognizer); param model_dir (a PocketSphinx "
-            "model directory; default: the one adapted to the simulated voices, or the stock one)",
+            "a speech recognizer: speech_recognizer (home::SpeechRecognizer); params model_dir (a PocketSphinx "
+            "model directory; default: the one adapted to the simulated voices, or the stock one), room_rt60 "
+            "(seconds of reverberation suppressed before decoding; default 0: none)",
             one_capability("speech_recognizer", [](const sim::DeviceSpec& spec, SimContext) {
               audio::RecognizerOptions options;
               options.model_dir = param(spec, "model_dir", sim_speech_model_dir());
+              options.room_rt60 = number_param(spec, "room_rt60", options.room_rt60);
               return std::make_shared<SpeechRecognizerDevice>(options);
             }));
   types.add("VisionEngine", "a face recognizer: face_recognizer (home::FaceRecognizer)",
