@@ -240,10 +240,7 @@ Signal suppress_late_reverberation(const Signal& signal, const Dereverberation& 
   if (!(options.early >= 0.01 && options.early <= 0.5)) {
     throw AudioError(fmt::format("an early part of {} s: dereverberation takes 0.01 to 0.5 s", options.early));
   }
-  if (signal.sample_rate < kMinSampleRate || signal.sample_rate > kMaxSampleRate) {
-    throw AudioError(fmt::format("audio at {} Hz: dereverberation takes {}..{} Hz", signal.sample_rate,
-                                 kMinSampleRate, kMaxSampleRate));
-  }
+  check_rate("suppress_late_reverberation", signal.sample_rate);
   const double rate = signal.sample_rate;
   const std::size_t n = detail::fft_size_for(static_cast<std::size_t>(0.032 * rate));
   const std::size_t hop = n / 4;

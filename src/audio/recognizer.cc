@@ -1,6 +1,7 @@
 #include "icars/audio/recognizer.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <pocketsphinx.h>
 #include <sphinxbase/ckd_alloc.h>
 #include <sphinxbase/fsg_model.h>
@@ -134,11 +135,7 @@ std::vector<std::string> split(const std::string& text) {
   return words;
 }
 
-std::string join(const std::vector<std::string>& words) {
-  std::string out;
-  for (const auto& w : words) out += (out.empty() ? "" : " ") + w;
-  return out;
-}
+std::string join(const std::vector<std::string>& words) { return fmt::format("{}", fmt::join(words, " ")); }
 
 // Ways of saying a word the American dictionary (cmudict) leaves out, for the words of the
 // phrases (a short phrase said otherwise than the dictionary says loses to the filler loop):
@@ -497,11 +494,8 @@ struct Recognizer::Impl {
   // The room's late reverberation out of `utterance` (RecognizerOptions::room_rt60): in a room
   // the tail of each phone covers the next (a plosive's closure, a fricative after a vowel).
   void dereverberate() {
-    Signal x{kSpeechRate, {}};
-    x.samples.reserve(utterance.size());
-    for (const auto v : utterance) x.samples.push_back(static_cast<float>(v) / 32768.0f);
-    const Signal y = suppress_late_reverberation(x, Dereverberation{.rt60 = options.room_rt60});
-    for (std::size_t i = 0; i < utterance.size(); ++i) utterance[i] = to_pcm16(y.samples[i]);
+    const AudioBlock heard{AudioFormat{kSpeechRate, 1}, 0, std::move(utterance)};
+    utterance = to_block(suppress_late_reverberation(mix_down(heard), Dereverberation{.rt60 = options.room_rt60})).samples;
   }
 
   // Decodes `utterance` with the search `name`, the whole utterance at once (so that the
