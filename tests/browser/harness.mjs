@@ -114,6 +114,9 @@ class TestContext {
   // waits for its dashboard line. Returns the process, the page's address (with the token for
   // `run`; /fleet for icars-coros) and the token.
   async startIcars(args) {
+    // Chromium first: on a loaded machine it takes seconds to start, and a run started before it
+    // would be seconds further along when the page opens than the test expects.
+    await this.launchBrowser();
     const icars = new Icars(path.resolve(this.args.icars), args, this.source);
     this.processes.push(icars);
     this.log(`icars ${args.join(" ")}`);
@@ -141,22 +144,28 @@ class TestContext {
     return icars;
   }
 
+  // Headless chromium, started once per test.
+  async launchBrowser() {
+    if (this.browser) return;
+    if (!existsSync(this.args.chromium)) {
+      throw new Error(`no chromium at ${this.args.chromium}: run scripts/install-deps.sh (or give --chromium BINARY)`);
+    }
+    const started = Date.now();
+    this.browser = await this.puppeteer.launch({
+      executablePath: this.args.chromium,
+      headless: true,
+      // As root (CI) chromium needs --no-sandbox; the page is the project's own, from loopback.
+      args: ["--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu", "--no-first-run"],
+      defaultViewport: { width: 1600, height: 1000 },
+      timeout: WAIT_MS,
+    });
+    this.log(`chromium up (${((Date.now() - started) / 1000).toFixed(1)} s)`);
+  }
+
   // A page of headless chromium at `url`. A JavaScript error on the page, or a console error the
   // page's own code reports ("dashboard: ..."), fails the test.
   async openPage(url) {
-    if (!this.browser) {
-      if (!existsSync(this.args.chromium)) {
-        throw new Error(`no chromium at ${this.args.chromium}: run scripts/install-deps.sh (or give --chromium BINARY)`);
-      }
-      this.browser = await this.puppeteer.launch({
-        executablePath: this.args.chromium,
-        headless: true,
-        // As root (CI) chromium needs --no-sandbox; the page is the project's own, from loopback.
-        args: ["--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu", "--no-first-run"],
-        defaultViewport: { width: 1600, height: 1000 },
-        timeout: WAIT_MS,
-      });
-    }
+    await this.launchBrowser();
     const page = await this.browser.newPage();
     page.setDefaultTimeout(WAIT_MS);
     const pageError = (message) => {
