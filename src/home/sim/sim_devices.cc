@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <mutex>
 #include <numbers>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -816,11 +817,22 @@ std::string sim_speech_model_dir() {
   return std::filesystem::exists(adapted / "en-us" / "sendump") ? adapted.string() : std::string();
 }
 
+double sim_room_rt60(const sim::House& house) {
+  std::optional<double> shortest;
+  for (const auto& spec : house.devices) {
+    if (spec.type != "Microphone" || param(spec, "source", "sim") != "sim") continue;
+    const double rt60 = number_param(spec, "rt60", audio::RoomSound{}.rt60);
+    shortest = std::min(shortest.value_or(rt60), rt60);
+  }
+  return shortest.value_or(0.0);
+}
+
 std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context, const std::string& speech_model_dir) {
   sim::DeviceSpec speech;
   speech.id = std::string(kSpeechEngineId);
   speech.type = "SpeechEngine";
   speech.params["model_dir"] = speech_model_dir;
+  speech.params["room_rt60"] = fmt::format("{}", sim_room_rt60(context.world.house()));
   sim::DeviceSpec vision;
   vision.id = std::string(kVisionEngineId);
   vision.type = "VisionEngine";

@@ -9,6 +9,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cctype>
 #include <cmath>
@@ -791,6 +792,34 @@ TEST(SimDeviceTypes, AHouseTakesTypesAddedToTheHomesOnesAndRefusesTwoOfOneName) 
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("VisionEngine or Toaster)"), std::string::npos) << e.what();
   }
+}
+
+// The simulated house's speech engine suppresses the reverberation its simulated microphones
+// render: the shortest of their rooms' RT60; a real microphone's room is unknown, and a house that
+// simulates none suppresses nothing.
+TEST(SimSpeechEngine, SuppressesTheReverberationOfTheHousesSimulatedRooms) {
+  sim::House house = sim::load_house(ICARS_PAPER_HOUSE);
+  ASSERT_TRUE(std::ranges::any_of(house.devices, [](const auto& d) { return d.type == "Microphone"; }));
+  EXPECT_DOUBLE_EQ(sim_room_rt60(house), audio::RoomSound{}.rt60);
+
+  sim::DeviceSpec bathroom;
+  bathroom.id = "bathroom_mic";
+  bathroom.type = "Microphone";
+  bathroom.params["rt60"] = "0.9";
+  house.devices.push_back(bathroom);
+  EXPECT_DOUBLE_EQ(sim_room_rt60(house), audio::RoomSound{}.rt60);
+  sim::DeviceSpec study = bathroom;
+  study.id = "study_mic";
+  study.params["rt60"] = "0.25";
+  house.devices.push_back(study);
+  EXPECT_DOUBLE_EQ(sim_room_rt60(house), 0.25);
+
+  for (auto& d : house.devices) {
+    if (d.type == "Microphone") d.params["source"] = "file:/dev/null";
+  }
+  EXPECT_DOUBLE_EQ(sim_room_rt60(house), 0.0);
+  house.devices.back().params = {{"rt60", "echoing"}};
+  EXPECT_THROW(sim_room_rt60(house), std::invalid_argument);
 }
 
 // The simulated house decodes with the model adapted to its voices (tools/speech-model), which the

@@ -117,8 +117,14 @@ inline constexpr std::string_view kSimulatorId = "simulator";
 // docs/speech.md), when the build made it; "" (the stock model) otherwise. A real microphone's
 // voices are people's: they keep the stock model.
 std::string sim_speech_model_dir();
+// The reverberation time the simulated house's speech engine suppresses before decoding
+// (RecognizerOptions::room_rt60): the shortest of its simulated microphones' rooms (their rt60
+// param, audio::RoomSound's by default), so that no room's sound loses more than its own tail;
+// 0 (none) when no microphone is simulated.
+double sim_room_rt60(const sim::House& house);
 // The software devices every simulated house gets: a speech engine (decoding with the model in
-// `speech_model_dir`, RecognizerOptions::model_dir; "": the stock one) and a vision engine.
+// `speech_model_dir`, RecognizerOptions::model_dir; "": the stock one; suppressing
+// sim_room_rt60's reverberation) and a vision engine.
 std::vector<std::shared_ptr<device::Device>> make_sim_engines(SimContext context,
                                                               const std::string& speech_model_dir = sim_speech_model_dir());
 // The pseudo-device "simulator" with its Simulation capability.
