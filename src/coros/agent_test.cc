@@ -219,6 +219,39 @@ TEST_F(Fleet, AnAuctionWithASilentRobotClosesWhenItsWindowEnds) {
   EXPECT_EQ(awarded["round"], 1);
 }
 
+// A bid that comes in after a round closed without bids, while the next round waits its pause
+// (a slow planner's), starts that round at once and counts in it: the round the "reauction"
+// event announced is the one that is awarded.
+TEST_F(Fleet, ABidDuringThePauseAfterARoundWithoutBidsOpensTheNextRoundAndCountsThere) {
+  bid_window_ = 5s;  // the pause too: the bid below is sent well within it
+  Agent& late = add_agent(config("robot3", "robot"));  // a robot agent whose bid is sent by hand
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("reauction") >= 1; }, 20s)) << log_.dump();
+  const auto reauction = log_.find("reauction")[0];
+  EXPECT_EQ(reauction["round"], 2);
+  EXPECT_EQ(reauction["reason"], "no bids");
+  EXPECT_EQ(log_.count("auction"), 1u) << log_.dump();  // round 2 waits its pause
+
+  const auto to = user_->call([&] { return user_->transport().local_endpoint(); });
+  late.call([&] { late.send(to, BidMessage{task, 1, "robot3", 12.5}); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("awarded") >= 1; }, 20s)) << log_.dump();
+  const auto awarded = log_.find("awarded")[0];
+  EXPECT_EQ(awarded["round"], 2) << awarded.dump();
+  EXPECT_EQ(awarded["robot"], "robot3");
+  EXPECT_EQ(awarded["bids"].size(), 1u);
+  const auto auctions = log_.find("auction");
+  ASSERT_GE(auctions.size(), 2u);
+  EXPECT_EQ(auctions[1]["round"], 2);
+  const auto bids = log_.find("bid_received");
+  ASSERT_EQ(bids.size(), 1u) << log_.dump();
+  EXPECT_EQ(bids[0]["round"], 2);
+  EXPECT_EQ(bids[0]["bid_round"], 1);
+}
+
 // A silent robot that leaves the user's neighbour table (its HELLOs stop) is no longer waited
 // for: the auction closes then, not at the end of its window.
 TEST_F(Fleet, AnAuctionStopsWaitingForASilentRobotThatLeaves) {

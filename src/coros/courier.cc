@@ -443,6 +443,9 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   if (r.finished || m.round > r.round || !r.robot.empty() || m.robot != e.sender) return;
   if (std::find(r.excluded.begin(), r.excluded.end(), m.robot) != r.excluded.end()) return;
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
+  // A late bid for a round already closed without bids: the next round (already announced in
+  // the "reauction" event) opens now instead of after its pause, and the bid counts there.
+  if (auctions_[m.task_id].between_rounds) start_round(r);
   Auction& au = auctions_[m.task_id];
   if (!r.bids.contains(m.robot)) {
     agent().emit({{"event", "bid_received"},
@@ -481,6 +484,7 @@ void CourierUserOperator::close_round(const std::string& task_id) {
     }
     agent().emit(
         {{"event", "reauction"}, {"task", task_id}, {"round", r.round + 1}, {"reason", "no bids"}});
+    au.between_rounds = true;
     const int round = r.round;
     au.closer = agent().after(agent().config().bid_window, [this, task_id, round] {
       auto it = deliveries_.find(task_id);

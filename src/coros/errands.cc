@@ -98,6 +98,7 @@ void ErrandMarket::next() {
 
 void ErrandMarket::start_round(const std::string& id, Errand& e) {
   stop_messages(e);
+  e.between_rounds = false;
   ++e.round;
   e.robot.clear();
   e.held = false;
@@ -138,6 +139,9 @@ void ErrandMarket::on_bid(const BidMessage& m, const Envelope& env) {
   const auto out = excluded(e);
   if (std::find(out.begin(), out.end(), m.robot) != out.end()) return;
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
+  // A late bid for a round already closed without bids: the next round opens now instead of
+  // after its pause, and the bid counts there.
+  if (e.between_rounds) start_round(m.task_id, e);
   e.bids[m.robot] = m.cost;
   e.bidders[m.robot] = env.from;
   if (every_robot_bid(e)) close_round(m.task_id);
@@ -165,6 +169,8 @@ void ErrandMarket::close_round(const std::string& id) {
       return;
     }
     const int round = e.round;
+    agent().emit({{"event", "errand_no_bids"}, {"errand", id}, {"round", round}});
+    e.between_rounds = true;
     e.closer = agent().after(agent().config().bid_window, [this, id, round] {
       auto it = errands_.find(id);
       if (it != errands_.end() && it->second.round == round && it->second.robot.empty()) start_round(id, it->second);

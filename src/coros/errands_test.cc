@@ -412,6 +412,33 @@ TEST_F(ErrandMarketTest, WithNoBidAnErrandIsUnassignedAfterMaxRoundsAndTheQueueG
   EXPECT_EQ(market_agent_->call([&] { return market_->open_errands(); }), 1u);  // e2, held
 }
 
+// A bid that comes in after a round closed without bids, while the next round waits its pause,
+// starts that round at once and counts in it (here the bidder then refuses the award, which
+// tells the round and its bids).
+TEST_F(ErrandMarketTest, ABidDuringThePauseAfterARoundWithoutBidsOpensTheNextRoundAndCountsThere) {
+  bid_window_ = 5s;  // the pause too: the bid below is sent well within it
+  add_bidder("robot1", []() -> std::optional<sim::Point> { return std::nullopt; });  // cannot work
+  add_market();
+  ASSERT_TRUE(start_fleet());
+  offer("e1", "entrance");
+  ASSERT_TRUE(wait_until([&] { return log_.count("errand_no_bids") >= 1; }, 20s)) << log_.dump();
+  EXPECT_EQ(log_.find("errand_no_bids")[0]["round"], 1);
+  EXPECT_EQ(auction_rounds("e1"), std::vector<int>{1});  // round 2 waits its pause
+
+  Agent& robot = *bidders_.at("robot1").agent;
+  const auto to = market_agent_->call([&] { return market_agent_->transport().local_endpoint(); });
+  robot.call([&] { robot.send(to, BidMessage{"e1", 1, "robot1", 12.5}); });
+  ASSERT_TRUE(wait_for("e1", ErrandNews::Kind::reauctioned)) << history("e1");
+  const auto n = news("e1");
+  EXPECT_EQ(n[0].round, 2) << describe(n[0]);
+  EXPECT_EQ(n[0].robot, "robot1");
+  EXPECT_EQ(n[0].bids, (std::map<std::string, double>{{"robot1", 12.5}})) << describe(n[0]);
+  EXPECT_NE(n[0].reason.find("refused the award: the robot cannot work now"), std::string::npos) << n[0].reason;
+  const auto rounds = auction_rounds("e1");
+  ASSERT_GE(rounds.size(), 2u);
+  EXPECT_EQ(rounds[1], 2);
+}
+
 TEST_F(ErrandMarketTest, ARobotWhoseMapDoesNotKnowTheStopDoesNotBid) {
   add_bidder("robot1", standing_at({1.0, 1.0}));
   // Nearer, but on the office floor's map, which has no kitchen corner.

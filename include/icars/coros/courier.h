@@ -149,6 +149,9 @@ class CourierUserOperator : public SimpleOperator {
     std::shared_ptr<Timer> closer;
     std::shared_ptr<GroupAction> announcer, awarder;
     std::map<std::string, asio::ip::udp::endpoint> bidders;
+    // The round closed without a bid and the next one waits its pause: a bid that comes in
+    // meanwhile opens the next round at once and counts there.
+    bool between_rounds = false;
   };
   void start_round(DeliveryRecord& record);
   void close_round(const std::string& task_id);

@@ -113,6 +113,9 @@ class ErrandMarket : public SimpleOperator {
     Clock::time_point round_started{};
     std::shared_ptr<Timer> closer;
     std::shared_ptr<GroupAction> announcer, awarder;
+    // The round closed without a bid and the next one waits its pause: a bid that comes in
+    // meanwhile opens the next round at once and counts there.
+    bool between_rounds = false;
   };
   void next();  // starts the next queued auction when none is running
   // Every errand `robot` holds is auctioned again without it; an auction waiting for it does not.
