@@ -53,6 +53,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     read_as<HelloMessage>(d, input);
     read_as<AuctionMessage>(d, input);
     read_as<BidMessage>(d, input);
+    read_as<DeclineMessage>(d, input);
     read_as<AwardMessage>(d, input);
     read_as<AwardAckMessage>(d, input);
     read_as<RevokeMessage>(d, input);

@@ -338,6 +338,7 @@ void make_coros_corpus(const fs::path& dir) {
   put(co::HelloMessage{"robot1", "127.0.0.1", 40001, "robot", "idle", 1.7e9, 3.5, 4.5, 2});
   put(co::AuctionMessage{"user-1", 2, "user", a, b, 400, {"robot3", "robot4"}});
   put(co::BidMessage{"user-1", 2, "robot1", 12.5});
+  put(co::DeclineMessage{"user-1", 2, "robot3", "no path to kitchen"});
   put(co::AwardMessage{"user-1", 2, "robot1", a, b, 12.5});
   put(co::AwardAckMessage{"user-1", 2, "robot1", false, "busy"});
   put(co::RevokeMessage{"user-1", 2, "robot1"});

@@ -53,6 +53,9 @@ std::string describe_event(const json& e) {
   }
   if (kind == "bid") return fmt::format("bids {:.2f} m for {} round {}", num(e, "cost"), task, round);
   if (kind == "no_bid") return fmt::format("does not bid for {}: {}", task, str(e, "reason"));
+  if (kind == "declined") {
+    return fmt::format("{} round {}: {} declined: {}", task, round, str(e, "robot"), str(e, "reason"));
+  }
   if (kind == "bid_received") {
     return fmt::format("{} round {}: {} bid {:.2f} m", task, round, str(e, "robot"), num(e, "cost"));
   }

@@ -252,6 +252,79 @@ TEST_F(Fleet, ABidDuringThePauseAfterARoundWithoutBidsOpensTheNextRoundAndCounts
   EXPECT_EQ(bids[0]["bid_round"], 1);
 }
 
+// A robot that cannot bid (here: no path to the pickup) says so with DECLINE to the auctioneer,
+// naming the round and why, for every copy of the AUCTION.
+TEST_F(Fleet, ARobotThatCannotReachAPlaceDeclinesTheAuction) {
+  Agent& robot = add_robot("robot1", 1.0, 1.5);
+  start_all();
+  asio::io_context io;
+  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+  s.non_blocking(true);
+  const auto to = robot.call([&] { return robot.transport().local_endpoint(); });
+  DatagramSigner signer(key_);
+  const Place nowhere{"nowhere", -50, -50};
+  const auto there = map_->locate("bedroom_window");
+  const Place dropoff{"bedroom_window", there.x, there.y};
+  std::vector<DeclineMessage> declines;
+  std::vector<std::byte> buffer(kMaxDatagram);
+  auto receive = [&] {
+    asio::ip::udp::endpoint from;
+    std::error_code ec;
+    for (;;) {
+      const auto n = s.receive_from(asio::buffer(buffer), from, 0, ec);
+      if (ec) return;
+      const auto d = decode_datagram(std::span(buffer.data(), n));
+      EXPECT_NE(d.code, MessageCode::bid);
+      if (d.code == MessageCode::decline) declines.push_back(d.body_as<DeclineMessage>());
+    }
+  };
+  for (int copy = 0; copy < 2; ++copy) {
+    auto d = encode_datagram("user", AuctionMessage{"t1", 3, "user", nowhere, dropoff, 1000, {}});
+    signer.sign(d);
+    s.send_to(asio::buffer(d), to);
+    ASSERT_TRUE(wait_until([&] { receive(); return declines.size() > static_cast<std::size_t>(copy); }, 20s));
+  }
+  for (const auto& d : declines) {
+    EXPECT_EQ(d.task_id, "t1");
+    EXPECT_EQ(d.round, 3);
+    EXPECT_EQ(d.robot, "robot1");
+    EXPECT_EQ(d.reason, "no path to nowhere or bedroom_window");
+  }
+  EXPECT_EQ(log_.count("no_bid"), 2u) << log_.dump();
+}
+
+// A DECLINE counts as an answer: the round closes once every known robot has bid or declined,
+// not when the window ends; the user's "declined" event tells who and why. A DECLINE of another
+// round, or from another agent than the robot it names, is not taken.
+TEST_F(Fleet, AnAuctionClosesAsSoonAsEveryKnownRobotHasBidOrDeclined) {
+  bid_window_ = 20s;
+  add_robot("robot1", 1.0, 1.5);
+  add_robot("robot2", 3.0, 2.0);
+  Agent& robot3 = add_agent(config("robot3", "robot"));  // its DECLINE is sent by hand
+  Agent& other = add_agent(config("robot4", "monitor"));
+  auto user = add_user();
+  start_all();
+  ASSERT_TRUE(wait_until([&] { return converged(); }, 20s));
+  const auto task =
+      user_->call([&] { return user->request("living_room_center", "bedroom_window"); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("bid_received") >= 2; }, 20s)) << log_.dump();
+  const auto to = user_->call([&] { return user_->transport().local_endpoint(); });
+  other.call([&] { other.send(to, DeclineMessage{task, 1, "robot3", "forged"}); });
+  robot3.call([&] { robot3.send(to, DeclineMessage{task, 2, "robot3", "a round not yet open"}); });
+  robot3.call([&] { robot3.send(to, DeclineMessage{task, 1, "robot3", "its battery is flat"}); });
+  ASSERT_TRUE(wait_until([&] { return log_.count("awarded") >= 1; }, 15s)) << log_.dump();
+  EXPECT_LT(auction_to_award(log_, task), 10.0);  // half the window, on a loaded machine
+  const auto awarded = log_.find("awarded")[0];
+  EXPECT_EQ(awarded["round"], 1);
+  EXPECT_EQ(awarded["bids"].size(), 2u) << awarded.dump();
+  EXPECT_EQ(awarded["robot"], "robot2");
+  const auto declined = log_.find("declined");
+  ASSERT_EQ(declined.size(), 1u) << log_.dump();
+  EXPECT_EQ(declined[0]["robot"], "robot3");
+  EXPECT_EQ(declined[0]["round"], 1);
+  EXPECT_EQ(declined[0]["reason"], "its battery is flat");
+}
+
 // A silent robot that leaves the user's neighbour table (its HELLOs stop) is no longer waited
 // for: the auction closes then, not at the end of its window.
 TEST_F(Fleet, AnAuctionStopsWaitingForASilentRobotThatLeaves) {

@@ -106,7 +106,10 @@ void CourierRobotOperator::on_auction(const AuctionMessage& m, const Envelope& e
   }
   if (std::find(m.exclude.begin(), m.exclude.end(), agent().id()) != m.exclude.end()) return;
   if (assignments_.contains(m.task_id) || finished_.contains(round_key(m.task_id, m.round))) return;
-  if (robot().status() == RobotStatus::failed) return;
+  if (robot().status() == RobotStatus::failed) {
+    agent().send(e.from, DeclineMessage{m.task_id, m.round, agent().id(), "the robot has failed"});
+    return;
+  }
   const std::string key = round_key(m.task_id, m.round);
   if (auto bid = bids_.find(key); bid != bids_.end()) {
     agent().send(e.from, BidMessage{m.task_id, m.round, agent().id(), bid->second});
@@ -141,10 +144,10 @@ void CourierRobotOperator::bid(const AuctionMessage& m, std::optional<double> co
   const auto waiting = std::move(planning_[m.task_id]);
   planning_.erase(m.task_id);
   if (!cost) {
-    agent().emit({{"event", "no_bid"},
-                  {"task", m.task_id},
-                  {"round", m.round},
-                  {"reason", "no path to " + m.pickup.name + " or " + m.dropoff.name}});
+    const std::string reason = "no path to " + m.pickup.name + " or " + m.dropoff.name;
+    agent().emit({{"event", "no_bid"}, {"task", m.task_id}, {"round", m.round}, {"reason", reason}});
+    // Said, so that the auctioneer does not wait the window out for this robot.
+    for (const auto& [to, round] : waiting) agent().send(to, DeclineMessage{m.task_id, round, agent().id(), reason});
     return;
   }
   // Every auction copy that waited gets the bid of its own round; the auctioneer also counts
@@ -305,6 +308,7 @@ void CourierUserOperator::init(Agent& agent) {
   actions_ = std::make_unique<ActionHandler>(agent);
   auto& p = agent.processor();
   p.on<BidMessage>([this](const BidMessage& m, const Envelope& e) { on_bid(m, e); });
+  p.on<DeclineMessage>([this](const DeclineMessage& m, const Envelope& e) { on_decline(m, e); });
   p.on<AwardAckMessage>(
       [this](const AwardAckMessage& m, const Envelope& e) { on_award_ack(m, e); });
   p.on<TaskStatusMessage>(
@@ -460,9 +464,24 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   if (every_known_robot_bid(r)) close_round(m.task_id);
 }
 
+void CourierUserOperator::on_decline(const DeclineMessage& m, const Envelope& e) {
+  auto it = deliveries_.find(m.task_id);
+  if (it == deliveries_.end() || m.robot != e.sender) return;
+  DeliveryRecord& r = it->second;
+  // Only this round's: a robot that could not bid in an earlier one may bid in this one. A round
+  // that already closed (won, or without bids and pausing) has nothing to wait for.
+  if (r.finished || m.round != r.round || !r.robot.empty() || r.bids.contains(m.robot)) return;
+  Auction& au = auctions_[m.task_id];
+  if (au.between_rounds || !au.declined.emplace(m.robot, m.reason).second) return;
+  agent().emit({{"event", "declined"}, {"task", m.task_id}, {"round", r.round}, {"robot", m.robot}, {"reason", m.reason}});
+  if (every_known_robot_bid(r)) close_round(m.task_id);
+}
+
 bool CourierUserOperator::every_known_robot_bid(const DeliveryRecord& r) const {
+  const auto au = auctions_.find(r.task_id);
   for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
     if (std::find(r.excluded.begin(), r.excluded.end(), n.id) != r.excluded.end()) continue;
+    if (au != auctions_.end() && au->second.declined.contains(n.id)) continue;
     if (!r.bids.contains(n.id)) return false;
   }
   return true;

@@ -31,6 +31,7 @@ void ErrandMarket::init(Agent& agent) {
   started_ = Clock::now();
   actions_ = std::make_unique<ActionHandler>(agent);
   agent.processor().on<BidMessage>([this](const BidMessage& m, const Envelope& e) { on_bid(m, e); });
+  agent.processor().on<DeclineMessage>([this](const DeclineMessage& m, const Envelope& e) { on_decline(m, e); });
   agent.processor().on<AwardAckMessage>([this](const AwardAckMessage& m, const Envelope& e) { on_award_ack(m, e); });
   agent.neighbors().on_change([this](const AgentState& s, bool joined) {
     if (s.role != "robot") return;
@@ -48,7 +49,7 @@ bool ErrandMarket::every_robot_bid(const Errand& e) const {
   const auto out = excluded(e);
   for (const auto& n : agent().neighbors().neighbors_with_role("robot")) {
     if (std::find(out.begin(), out.end(), n.id) != out.end()) continue;
-    if (!e.bids.contains(n.id)) return false;
+    if (!e.bids.contains(n.id) && !e.declined.contains(n.id)) return false;
   }
   return true;
 }
@@ -105,6 +106,7 @@ void ErrandMarket::start_round(const std::string& id, Errand& e) {
   e.cost = 0;
   e.bids.clear();
   e.bidders.clear();
+  e.declined.clear();
   e.round_started = Clock::now();
   const auto& c = agent().config();
   const ErrandAuctionMessage m{id, e.round, agent().id(), e.stop, static_cast<std::int32_t>(c.bid_window.count()),
@@ -144,6 +146,18 @@ void ErrandMarket::on_bid(const BidMessage& m, const Envelope& env) {
   if (e.between_rounds) start_round(m.task_id, e);
   e.bids[m.robot] = m.cost;
   e.bidders[m.robot] = env.from;
+  if (every_robot_bid(e)) close_round(m.task_id);
+}
+
+void ErrandMarket::on_decline(const DeclineMessage& m, const Envelope& env) {
+  auto it = errands_.find(m.task_id);
+  if (it == errands_.end() || m.robot != env.sender) return;
+  Errand& e = it->second;
+  // Only this round's: a robot that could not bid in an earlier one may bid in this one.
+  if (m.round != e.round || !e.robot.empty() || e.between_rounds || e.bids.contains(m.robot)) return;
+  if (!e.declined.emplace(m.robot, m.reason).second) return;
+  agent().emit({{"event", "errand_declined"}, {"errand", m.task_id}, {"round", e.round}, {"robot", m.robot},
+                {"reason", m.reason}});
   if (every_robot_bid(e)) close_round(m.task_id);
 }
 
@@ -414,7 +428,14 @@ void ErrandBidder::on_auction(const ErrandAuctionMessage& m, const Envelope& e) 
     cached.version = version_;
     cached.round = m.round;
   }
-  if (!cached.cost) return;
+  if (!cached.cost) {
+    // Said, so that the market does not wait the window out for this robot.
+    const std::string reason = !locate(m.stop) ? "the stop is not on this robot's map"
+                               : !where_()     ? "the robot cannot work now"
+                                               : "no path to " + m.stop.name;
+    agent().send(e.from, DeclineMessage{m.errand, m.round, agent().id(), reason});
+    return;
+  }
   agent().send(e.from, BidMessage{m.errand, m.round, agent().id(), *cached.cost});
 }
 

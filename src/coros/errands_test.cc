@@ -21,6 +21,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "child_process.h"
@@ -439,22 +440,37 @@ TEST_F(ErrandMarketTest, ABidDuringThePauseAfterARoundWithoutBidsOpensTheNextRou
   EXPECT_EQ(rounds[1], 2);
 }
 
-TEST_F(ErrandMarketTest, ARobotWhoseMapDoesNotKnowTheStopDoesNotBid) {
+// A robot that cannot bid says so (DECLINE): the round closes once every robot has bid or
+// declined, long before its window ends.
+TEST_F(ErrandMarketTest, ARobotWhoseMapDoesNotKnowTheStopDeclines) {
+  bid_window_ = 20s;
   add_bidder("robot1", standing_at({1.0, 1.0}));
   // Nearer, but on the office floor's map, which has no kitchen corner.
   add_bidder("robot2", standing_at({5.0, 2.4}), MapPlanner::load(kOtherMap, 0.25));
+  add_bidder("robot3", []() -> std::optional<sim::Point> { return std::nullopt; });  // cannot work
   add_market();
   ASSERT_TRUE(start_fleet());
   const auto& b2 = bidders_.at("robot2");
   EXPECT_EQ(b2.agent->call([&] { return b2.op->cost_of(place("kitchen_corner")); }), std::nullopt);
-  offer("e1", "kitchen_corner");  // robot2's bid never comes: the round ends with the window
+  // A market younger than the neighbour expiry waits for robots it may not have heard yet (the
+  // test above): the errand is offered once it is older, which the market's start bounds.
+  const auto market_started_by = std::chrono::steady_clock::now();
+  const auto expiry = market_agent_->call([&] { return market_agent_->config().neighbor_expiry; });
+  std::this_thread::sleep_until(market_started_by + expiry);
+  offer("e1", "kitchen_corner");
   ASSERT_TRUE(wait_for("e1", ErrandNews::Kind::awarded)) << history("e1");
   const auto n = news("e1");
   ASSERT_EQ(n.size(), 1u) << history("e1");
   EXPECT_EQ(n[0].robot, "robot1");
   EXPECT_EQ(n[0].bids.size(), 1u) << describe(n[0]);
   EXPECT_FALSE(n[0].bids.contains("robot2")) << describe(n[0]);
+  EXPECT_LT(n[0].auction_ms, 10000.0);  // half the window, on a loaded machine
   EXPECT_TRUE(route("robot2").empty());
+  std::map<std::string, std::string> declined;
+  for (const auto& e : log_.find("errand_declined")) declined[e["robot"]] = e["reason"];
+  EXPECT_EQ(declined, (std::map<std::string, std::string>{{"robot2", "the stop is not on this robot's map"},
+                                                          {"robot3", "the robot cannot work now"}}))
+      << log_.dump();
 }
 
 TEST_F(ErrandMarketTest, ForgedAwardsAuctionsAndRevokesAreIgnored) {

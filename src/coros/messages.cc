@@ -32,6 +32,8 @@ std::string_view to_string(MessageCode code) {
       return "RESULT";
     case MessageCode::result_ack:
       return "RESULT_ACK";
+    case MessageCode::decline:
+      return "DECLINE";
     case MessageCode::errand_auction:
       return "ERRAND_AUCTION";
     case MessageCode::errand_award:

@@ -29,6 +29,8 @@ TEST(CorosMessages, EveryMessageRoundTrips) {
   EXPECT_EQ(round_trip(auction), auction);
   const BidMessage bid{"user-1", 2, "robot1", 12.5};
   EXPECT_EQ(round_trip(bid), bid);
+  const DeclineMessage decline{"user-1", 2, "robot3", "no path to office_112"};
+  EXPECT_EQ(round_trip(decline), decline);
   const AwardMessage award{"user-1", 2, "robot1", a, b, 12.5};
   EXPECT_EQ(round_trip(award), award);
   const AwardAckMessage ack{"user-1", 2, "robot1", false, "busy"};

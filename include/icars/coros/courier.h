@@ -152,12 +152,14 @@ class CourierUserOperator : public SimpleOperator {
     // The round closed without a bid and the next one waits its pause: a bid that comes in
     // meanwhile opens the next round at once and counts there.
     bool between_rounds = false;
+    std::map<std::string, std::string> declined;  // robot -> its reason, this round
   };
   void start_round(DeliveryRecord& record);
   void close_round(const std::string& task_id);
   void on_bid(const BidMessage& m, const Envelope& e);
+  void on_decline(const DeclineMessage& m, const Envelope& e);
   // Every robot in the neighbour table (robots only, not monitors or users) that may bid in
-  // this round has bid: the round closes without waiting for the rest of its window.
+  // this round has bid or declined: the round closes without waiting for the rest of its window.
   bool every_known_robot_bid(const DeliveryRecord& record) const;
   void on_award_ack(const AwardAckMessage& m, const Envelope& e);
   void on_status(const TaskStatusMessage& m, const Envelope& e);

@@ -109,6 +109,7 @@ class ErrandMarket : public SimpleOperator {
     double cost = 0;
     std::set<std::string> excluded;
     std::map<std::string, double> bids;
+    std::map<std::string, std::string> declined;  // robot -> its reason, this round
     std::map<std::string, asio::ip::udp::endpoint> bidders;
     Clock::time_point round_started{};
     std::shared_ptr<Timer> closer;
@@ -123,6 +124,7 @@ class ErrandMarket : public SimpleOperator {
   void start_round(const std::string& id, Errand& e);
   void close_round(const std::string& id);
   void on_bid(const BidMessage& m, const Envelope& env);
+  void on_decline(const DeclineMessage& m, const Envelope& env);
   void on_award_ack(const AwardAckMessage& m, const Envelope& env);
   void tell(const Errand& e, ErrandNews news) const;
   std::vector<std::string> excluded(const Errand& e) const;

@@ -52,6 +52,7 @@ enum class MessageCode : std::uint16_t {
   task_status = 15,  // progress of a task, broadcast by the robot doing it
   result = 16,       // the task ended: delivered or failed
   result_ack = 17,   // the auctioneer got the result
+  decline = 18,      // a robot will not bid in this round: the auctioneer need not wait for it
   // Errands (errands.h): single stops auctioned one after another; BID, AWARD_ACK and REVOKE
   // are shared with the courier market.
   errand_auction = 20,  // a stop for sale: bid the cost of appending it to your route
@@ -104,6 +105,18 @@ struct BidMessage {
   double cost = 0;  // metres the robot would drive, planned over the map
   static constexpr MessageCode kCode = MessageCode::bid;
   bool operator==(const BidMessage&) const = default;
+};
+
+// A robot's answer to an AUCTION (or ERRAND_AUCTION, `task_id` naming the errand) it will not
+// bid on: it has failed, cannot reach a place, cannot work now. The auctioneer stops waiting for
+// it in that round; a robot that says nothing is waited for until the bid window ends.
+struct DeclineMessage {
+  std::string task_id;
+  std::int32_t round = 1;
+  std::string robot;
+  std::string reason;
+  static constexpr MessageCode kCode = MessageCode::decline;
+  bool operator==(const DeclineMessage&) const = default;
 };
 
 // The winner of a round's bids (by robot id): the lowest cost, equal costs going to the smaller
@@ -209,6 +222,7 @@ PLANET_VALUED(icars::coros::HelloMessage, id, ip, port, role, status, timestamp,
 PLANET_VALUED(icars::coros::AuctionMessage, task_id, round, auctioneer, pickup, dropoff, window_ms,
               exclude);
 PLANET_VALUED(icars::coros::BidMessage, task_id, round, robot, cost);
+PLANET_VALUED(icars::coros::DeclineMessage, task_id, round, robot, reason);
 PLANET_VALUED(icars::coros::AwardMessage, task_id, round, robot, pickup, dropoff, cost);
 PLANET_VALUED(icars::coros::AwardAckMessage, task_id, round, robot, accepted, reason);
 PLANET_VALUED(icars::coros::RevokeMessage, task_id, round, robot);

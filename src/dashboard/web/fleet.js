@@ -73,7 +73,7 @@
     const k = Number(n) || 1;
     let r = t.rounds.get(k);
     if (!r) {
-      r = { round: k, bids: new Map(), late: new Map(), winner: "", cost: null, assigned: false, reauction: null,
+      r = { round: k, bids: new Map(), late: new Map(), declined: new Map(), winner: "", cost: null, assigned: false, reauction: null,
             excluded: [], state: "open", endedBy: "" };
       t.rounds.set(k, r);
     }
@@ -155,6 +155,9 @@
         (r.winner ? r.late : r.bids).set(e.robot, e.cost);
         break;
       }
+      case "declined":
+        roundOf(task(m, e.task), e.round).declined.set(e.robot, e.reason || "");
+        break;
       case "awarded": {
         const r = roundOf(task(m, e.task), e.round);
         for (const [id, c] of Object.entries(e.bids || {})) r.bids.set(id, c);
@@ -296,6 +299,8 @@
           el("li", { class: id === r.winner ? "winner" : "", "data-bid": id, "data-cost": c, text: `${id} ${cost(c)}` }));
         const late = [...r.late.entries()].map(([id, c]) =>
           el("li", { class: "late", "data-late-bid": id, "data-cost": c, text: `${id} ${cost(c)} (late)` }));
+        const declined = [...r.declined.entries()].sort(([a], [b]) => a.localeCompare(b)).map(([id, why]) =>
+          el("li", { class: "declined", "data-declined": id, text: `${id} declined: ${why}` }));
         const attrs = { class: "round", "data-task": t.task, "data-round": r.round, "data-state": r.state,
                         "data-winner": r.winner };
         if (r.reauction !== null) attrs["data-reauction"] = r.reauction;
@@ -304,7 +309,7 @@
                      r.winner ? ` — ${r.winner} won at ${cost(r.cost)} m${r.assigned ? ", acknowledged" : ""}` : " — bidding",
                      r.excluded.length ? ` (without ${r.excluded.join(", ")})` : ""),
                   r.reauction !== null ? el("div", { class: "reason", text: "auctioned again: " + r.reauction }) : null,
-                  el("ul", {}, ...bids, ...late),
+                  el("ul", {}, ...bids, ...late, ...declined),
                   r.endedBy ? el("div", { class: "reason", "data-ended-by": r.endedBy, text: "ended: " + r.endedBy }) : null);
       });
       const stages = t.stages.map((s) => `${s.robot} ${s.stage}`).join(" → ");
