@@ -257,33 +257,16 @@ TEST_F(Fleet, ABidDuringThePauseAfterARoundWithoutBidsOpensTheNextRoundAndCounts
 TEST_F(Fleet, ARobotThatCannotReachAPlaceDeclinesTheAuction) {
   Agent& robot = add_robot("robot1", 1.0, 1.5);
   start_all();
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
-  s.non_blocking(true);
-  const auto to = robot.call([&] { return robot.transport().local_endpoint(); });
-  DatagramSigner signer(key_);
+  coros_test::KeyHolder user(key_, robot.call([&] { return robot.transport().local_endpoint(); }));
   const Place nowhere{"nowhere", -50, -50};
   const auto there = map_->locate("bedroom_window");
   const Place dropoff{"bedroom_window", there.x, there.y};
-  std::vector<DeclineMessage> declines;
-  std::vector<std::byte> buffer(kMaxDatagram);
-  auto receive = [&] {
-    asio::ip::udp::endpoint from;
-    std::error_code ec;
-    for (;;) {
-      const auto n = s.receive_from(asio::buffer(buffer), from, 0, ec);
-      if (ec) return;
-      const auto d = decode_datagram(std::span(buffer.data(), n));
-      EXPECT_NE(d.code, MessageCode::bid);
-      if (d.code == MessageCode::decline) declines.push_back(d.body_as<DeclineMessage>());
-    }
-  };
-  for (int copy = 0; copy < 2; ++copy) {
-    auto d = encode_datagram("user", AuctionMessage{"t1", 3, "user", nowhere, dropoff, 1000, {}});
-    signer.sign(d);
-    s.send_to(asio::buffer(d), to);
-    ASSERT_TRUE(wait_until([&] { receive(); return declines.size() > static_cast<std::size_t>(copy); }, 20s));
+  for (std::size_t copy = 1; copy <= 2; ++copy) {
+    user.send("user", AuctionMessage{"t1", 3, "user", nowhere, dropoff, 1000, {}});
+    ASSERT_TRUE(wait_until([&] { return user.receive(), user.replies<DeclineMessage>().size() >= copy; }, 20s));
   }
+  EXPECT_TRUE(user.replies<BidMessage>().empty());
+  const auto declines = user.replies<DeclineMessage>();
   for (const auto& d : declines) {
     EXPECT_EQ(d.task_id, "t1");
     EXPECT_EQ(d.round, 3);

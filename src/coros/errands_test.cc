@@ -14,8 +14,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <asio/io_context.hpp>
-#include <asio/ip/udp.hpp>
 #include <atomic>
 #include <map>
 #include <memory>
@@ -47,6 +45,16 @@ std::string describe(const ErrandNews& n) {
   return fmt::format("{} round {} {} {} at {:.3f}, bids:{}, excluded: {}, reason: '{}'", n.errand,
                      n.round, to_string(n.kind), n.robot, n.cost, bids, fmt::join(n.excluded, ","),
                      n.reason);
+}
+
+// The messages of `all` about `errand`.
+template <class M>
+std::vector<M> about(const std::vector<M>& all, const std::string& errand) {
+  std::vector<M> out;
+  for (const auto& m : all) {
+    if (m.task_id == errand) out.push_back(m);
+  }
+  return out;
 }
 
 class ErrandMarketTest : public ::testing::Test, protected coros_test::FleetBase {
@@ -479,51 +487,17 @@ TEST_F(ErrandMarketTest, ForgedAwardsAuctionsAndRevokesAreIgnored) {
   start_all();
   Agent& robot = *bidders_.at("robot1").agent;
   // A key holder that misbehaves: its datagrams are signed, so only the bidder's checks stop them.
-  asio::io_context io;
-  asio::ip::udp::socket s(io, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
-  s.non_blocking(true);
-  const auto to = robot.call([&] { return robot.transport().local_endpoint(); });
-  DatagramSigner signer(key_);
+  coros_test::KeyHolder forger(key_, robot.call([&] { return robot.transport().local_endpoint(); }));
   auto send = [&](const std::string& sender, const auto& message, bool truncate = false) {
-    auto d = encode_datagram(sender, message);
-    if (truncate) d.pop_back();
-    signer.sign(d);
-    s.send_to(asio::buffer(d), to);
+    forger.send(sender, message, truncate);
   };
-  // What the robot sent back to this socket, by message code.
-  std::vector<Datagram> replies;
-  std::vector<std::byte> buffer(kMaxDatagram);
-  auto receive = [&] {
-    asio::ip::udp::endpoint from;
-    std::error_code ec;
-    for (;;) {
-      const auto n = s.receive_from(asio::buffer(buffer), from, 0, ec);
-      if (ec) return;
-      replies.push_back(decode_datagram(std::span(buffer.data(), n)));
-    }
-  };
-  auto bids_for = [&](const std::string& errand) {
-    std::vector<BidMessage> out;
-    for (const auto& d : replies) {
-      if (d.code == MessageCode::bid && d.body_as<BidMessage>().task_id == errand)
-        out.push_back(d.body_as<BidMessage>());
-    }
-    return out;
-  };
-  auto acks_for = [&](const std::string& errand) {
-    std::vector<AwardAckMessage> out;
-    for (const auto& d : replies) {
-      if (d.code == MessageCode::award_ack && d.body_as<AwardAckMessage>().task_id == errand) {
-        out.push_back(d.body_as<AwardAckMessage>());
-      }
-    }
-    return out;
-  };
+  auto bids_for = [&](const std::string& errand) { return about(forger.replies<BidMessage>(), errand); };
+  auto acks_for = [&](const std::string& errand) { return about(forger.replies<AwardAckMessage>(), errand); };
   // Replies come in the order the robot handled the datagrams, so once the reply to a genuine
   // one arrives, the forgery sent before it has been handled.
   auto wait_for_reply = [&](auto has) {
     return wait_until([&] {
-      receive();
+      forger.receive();
       return has();
     });
   };

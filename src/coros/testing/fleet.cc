@@ -31,6 +31,31 @@ std::string EventLog::dump() const {
   return out;
 }
 
+KeyHolder::KeyHolder(const c::FleetKey& key, asio::ip::udp::endpoint to)
+    : socket_(io_, asio::ip::udp::endpoint(asio::ip::make_address("127.0.0.1"), 0)),
+      to_(std::move(to)),
+      signer_(key) {
+  socket_.non_blocking(true);
+}
+
+void KeyHolder::send_signed(std::vector<std::byte> datagram) {
+  signer_.sign(datagram);
+  socket_.send_to(asio::buffer(datagram), to_);
+}
+
+bool KeyHolder::receive() {
+  std::vector<std::byte> buffer(c::kMaxDatagram);
+  const auto before = replies_.size();
+  for (;;) {
+    asio::ip::udp::endpoint from;
+    std::error_code ec;
+    const auto n = socket_.receive_from(asio::buffer(buffer), from, 0, ec);
+    if (ec) break;
+    replies_.push_back(c::decode_datagram(std::span(buffer.data(), n)));
+  }
+  return replies_.size() > before;
+}
+
 FleetBase::FleetBase(const std::string& map_file)
     : port_(c::free_udp_port()), map_file_(map_file), map_(c::MapPlanner::load(map_file, 0.25)) {}
 

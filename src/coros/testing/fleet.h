@@ -5,6 +5,8 @@
 
 #include <spdlog/logger.h>
 
+#include <asio/io_context.hpp>
+#include <asio/ip/udp.hpp>
 #include <chrono>
 #include <cstdint>
 #include <map>
@@ -31,6 +33,40 @@ class EventLog {
  private:
   mutable std::mutex mutex_;
   std::vector<nlohmann::json> events_;
+};
+
+// A key holder that misbehaves: a socket of its own on loopback sending datagrams signed with
+// the fleet's key, under any sender id, to one agent, and reading what the agent sends back.
+class KeyHolder {
+ public:
+  KeyHolder(const icars::coros::FleetKey& key, asio::ip::udp::endpoint to);
+  // `truncate`: the datagram loses its last byte before it is signed (well signed, malformed).
+  template <icars::coros::Message M>
+  void send(const std::string& sender, const M& message, bool truncate = false) {
+    auto d = icars::coros::encode_datagram(sender, message);
+    if (truncate) d.pop_back();
+    send_signed(std::move(d));
+  }
+  // Reads what has come back without waiting; true when something did.
+  bool receive();
+  // Every reply of M's kind so far, in the order the agent sent them.
+  template <icars::coros::Message M>
+  std::vector<M> replies() const {
+    std::vector<M> out;
+    for (const auto& d : replies_) {
+      if (d.code == M::kCode) out.push_back(d.body_as<M>());
+    }
+    return out;
+  }
+  const std::vector<icars::coros::Datagram>& all_replies() const { return replies_; }
+
+ private:
+  void send_signed(std::vector<std::byte> datagram);
+  asio::io_context io_;
+  asio::ip::udp::socket socket_;
+  asio::ip::udp::endpoint to_;
+  icars::coros::DatagramSigner signer_;
+  std::vector<icars::coros::Datagram> replies_;
 };
 
 // Inherit it beside ::testing::Test (or hold one): agents it adds are stopped when it goes.
