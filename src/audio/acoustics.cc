@@ -234,8 +234,9 @@ AudioBlock room_noise(double seconds, int channels, const RoomSound& room, int s
 }
 
 Signal suppress_late_reverberation(const Signal& signal, const Dereverberation& options) {
-  if (!(options.rt60 >= 0.05 && options.rt60 <= 5.0)) {
-    throw AudioError(fmt::format("a reverberation time of {} s: dereverberation takes 0.05 to 5 s", options.rt60));
+  if (!(options.rt60 >= kMinDereverberationRt60 && options.rt60 <= kMaxRt60)) {
+    throw AudioError(fmt::format("a reverberation time of {} s: dereverberation takes {} to {} s", options.rt60,
+                                 kMinDereverberationRt60, kMaxRt60));
   }
   if (!(options.early >= 0.01 && options.early <= 0.5)) {
     throw AudioError(fmt::format("an early part of {} s: dereverberation takes 0.01 to 0.5 s", options.early));

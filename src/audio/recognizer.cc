@@ -604,9 +604,9 @@ Recognizer::Recognizer(RecognizerOptions options) : impl_(std::make_unique<Impl>
                        " (apt install pocketsphinx-en-us, or set RecognizerOptions::model_dir)");
     }
   }
-  if (options.room_rt60 != 0 && !(options.room_rt60 >= 0.05 && options.room_rt60 <= 5.0)) {
-    throw AudioError(fmt::format("RecognizerOptions::room_rt60 {} s: 0 (no dereverberation) or 0.05 to 5 s",
-                                 options.room_rt60));
+  if (options.room_rt60 != 0 && !(options.room_rt60 >= kMinDereverberationRt60 && options.room_rt60 <= kMaxRt60)) {
+    throw AudioError(fmt::format("RecognizerOptions::room_rt60 {} s: 0 (no dereverberation) or {} to {} s",
+                                 options.room_rt60, kMinDereverberationRt60, kMaxRt60));
   }
   impl_->options = std::move(options);
   std::vector<std::string> args = {"icars",  "-hmm",      hmm,      "-dict", dict,

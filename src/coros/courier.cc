@@ -449,8 +449,8 @@ void CourierUserOperator::on_bid(const BidMessage& m, const Envelope& e) {
   if (!(m.cost >= 0) || !std::isfinite(m.cost)) return;
   // A late bid for a round already closed without bids: the next round (already announced in
   // the "reauction" event) opens now instead of after its pause, and the bid counts there.
-  if (auctions_[m.task_id].between_rounds) start_round(r);
   Auction& au = auctions_[m.task_id];
+  if (au.between_rounds) start_round(r);  // resets `au` for the new round
   if (!r.bids.contains(m.robot)) {
     agent().emit({{"event", "bid_received"},
                   {"task", m.task_id},

@@ -2,9 +2,9 @@
 // (tools/speech-model/adapt.sh). Every sentence of SENTENCES is spoken by each espeak-ng voice and
 // rendered as the simulated microphones and bench/speech.cc render a voice: one path from a
 // talker 1 to 4 m away (drawn), 60 - 20 log10(d) dB SPL, RT60 0.4 s, critical distance 1 m,
-// 30 dB SPL of room noise, 0.5 s of lead and 0.8 s of tail. If the recognizer suppresses
-// reverberation by default (RecognizerOptions::room_rt60), the recordings are suppressed alike,
-// so the model learns what the decoder will be given. Deterministic for a seed.
+// 30 dB SPL of room noise, 0.5 s of lead and 0.8 s of tail, reverberation and all: the simulated
+// house's engine suppresses the late reverberation before decoding, but a model adapted on
+// suppressed recordings was no better (docs/speech.md, "Round two"). Deterministic for a seed.
 //
 //   icars-render-adaptation SENTENCES OUTDIR SEED VOICE...
 //
@@ -24,7 +24,6 @@
 #include <vector>
 
 #include "icars/audio/acoustics.h"
-#include "icars/audio/recognizer.h"
 #include "icars/audio/synthesizer.h"
 #include "icars/audio/wav.h"
 
@@ -61,12 +60,8 @@ int main(int argc, char** argv) {
         const a::Signal spoken = synthesizer.speak(sentences[i], a::Voice{.name = voice});
         const a::AudioBlock block =
             a::render(spoken, {{.distance = d, .level_db = 60.0 - 20 * std::log10(d)}}, room, 0.5, 0.8);
-        const double room_rt60 = a::RecognizerOptions{}.room_rt60;
-        const a::AudioBlock heard =
-            room_rt60 > 0 ? a::to_block(a::suppress_late_reverberation(a::mix_down(block), {.rt60 = room_rt60}))
-                          : block;
         const std::string id = tag + "_" + std::to_string(i + 1);
-        a::write_wav((out / "wav" / (id + ".wav")).string(), heard);
+        a::write_wav((out / "wav" / (id + ".wav")).string(), block);
         fileids << "wav/" << id << "\n";
         transcription << "<s> " << sentences[i] << " </s> (" << id << ")\n";
         seconds += block.seconds();

@@ -47,8 +47,10 @@ AudioBlock render(const Signal& source, const std::vector<Path>& paths, const Ro
 // the early reflections, which carry speech's phones, stay; the tail that smears one phone over
 // the next goes. The defaults take off about 5 dB of a tail and keep speech's spectrum as it is
 // (what the recognizer measured best); smoothing_bins 3 and oversubtraction 1.5 take off 10 dB
-// and blur the spectrum. AudioError for an rt60 outside 0.05..5 s, an early part outside
-// 0.01..0.5 s or a rate outside kMinSampleRate..kMaxSampleRate.
+// and blur the spectrum. AudioError for an rt60 outside kMinDereverberationRt60..kMaxRt60 s, an
+// early part outside 0.01..0.5 s or a rate outside kMinSampleRate..kMaxSampleRate.
+inline constexpr double kMaxRt60 = 5.0;                   // s: a cathedral's; rooms stay below
+inline constexpr double kMinDereverberationRt60 = 0.05;  // s: below it there is no tail to take
 struct Dereverberation {
   double rt60 = 0.4;
   double early = 0.05;

@@ -750,8 +750,9 @@ SimDeviceTypes make_home_types() {
               setup.mics = std::move(mics);
               setup.room.noise_db = number_param(spec, "noise_db", setup.room.noise_db);
               setup.room.rt60 = number_param(spec, "rt60", setup.room.rt60);
-              if (setup.room.rt60 < 0 || setup.room.rt60 > 5) {
-                throw std::invalid_argument(fmt::format("device {}: parameter rt60 = {} s is not in 0..5", spec.id, setup.room.rt60));
+              if (!(setup.room.rt60 >= 0 && setup.room.rt60 <= audio::kMaxRt60)) {
+                throw std::invalid_argument(fmt::format("device {}: parameter rt60 = {} s is not in 0..{}", spec.id,
+                                                        setup.room.rt60, audio::kMaxRt60));
               }
               setup.room.seed = c.world.house().seed ^ std::hash<std::string>{}(spec.id);
               return std::make_shared<SimMicrophone>(spec.id, c, std::move(setup));
