@@ -258,14 +258,15 @@ TEST_F(SF, ServicesFollowTheirDevicesConnection) {
 
   devices.reset();  // the device manager goes away
   ASSERT_TRUE(planet_test::wait_until([&] { return !tv->available() && !speech->available(); }));
-  EXPECT_EQ(went_down.load(), 1);
+  // A service's watchers are told after its availability flips: waited for, not looked for.
+  EXPECT_TRUE(planet_test::wait_until([&] { return went_down == 1; }));
   EXPECT_THROW(tv->proxy().set_power(true), p::Error);
   EXPECT_EQ(registry_->connected_devices(), 0u);
 
   devices = std::make_unique<DeviceSide>(port_);  // and comes back
   ASSERT_TRUE(devices->manager.wait_registered(1, 20s));
   ASSERT_TRUE(planet_test::wait_until([&] { return tv->available() && speech->available(); }));
-  EXPECT_EQ(came_back.load(), 1);
+  EXPECT_TRUE(planet_test::wait_until([&] { return came_back == 1; }));
   EXPECT_EQ(container_.all().size(), 6u) << "the same services were rebound, none added";
   tv->proxy().set_channel(7);
   ASSERT_TRUE(planet_test::wait_until([&] { return devices->mic->subscribers() == 1; }));
