@@ -319,7 +319,9 @@ TEST(DeviceManagerTest, RegistersDevicesAddedLaterAndKeepsOfflineOnesOut) {
 
   devices.manager.set_online("tv", false);
   ASSERT_TRUE(planet_test::wait_until([&] { return tvs() == 0; }));
-  EXPECT_TRUE(sf->container().find(ServiceQuery::of_type("TVControl")).empty()) << "unregistered, not only unavailable";
+  // An unregistered device's services are unbound (unavailable) first, then removed.
+  EXPECT_TRUE(planet_test::wait_until([&] { return sf->container().find(ServiceQuery::of_type("TVControl")).empty(); }))
+      << "unregistered, not only unavailable";
   EXPECT_THROW(devices.manager.set_online("no_such_device", true), std::invalid_argument);
 
   sf.reset();  // the server restarts: the round registers the online devices only

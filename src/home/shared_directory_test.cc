@@ -185,7 +185,10 @@ TEST_F(SharedDirectoryTest, AMirroredServiceFollowsItsDeviceOutagesAndRegistrati
   ASSERT_TRUE(planet_test::wait_until([&] { return light->available(); }, 30s));
   light->proxy().set_power(true);
   EXPECT_TRUE(again.light->on());
+  // B binds each device as A tells of it: the sofa may come back just after the lamp.
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("OccupancySensor") == 1; }, 30s));
   auto sofa_now = on_b<OccupancyService>("OccupancySensor");
+  ASSERT_NE(sofa_now, nullptr);
   std::atomic<int> heard{0};
   const auto subscription = planet_test::subscribe_scoped(*sofa_now, [&](const OccupancyEvent&) { ++heard; });
   ASSERT_TRUE(planet_test::wait_until([&] { return again.sofa->subscribers() == 2; }, 30s));
@@ -207,7 +210,10 @@ TEST_F(SharedDirectoryTest, RelaysRefuseImpostorsAndMalformedCallsClearly) {
     if (path.starts_with(std::string(s::kRelayListenerPrefix))) relay_listener = path;
   }
   ASSERT_FALSE(relay_listener.empty());
+  // B's sensor subscribes as it binds, before it counts as available.
+  ASSERT_TRUE(planet_test::wait_until([&] { return available_on_b("OccupancySensor") == 1; }, 30s));
   auto sofa = on_b<OccupancyService>("OccupancySensor");
+  ASSERT_NE(sofa, nullptr);
   std::atomic<int> heard{0};
   const auto subscription = planet_test::subscribe_scoped(*sofa, [&](const OccupancyEvent&) { ++heard; });
 

@@ -107,6 +107,8 @@ TEST(ConnectionFailure, FrozenPeerIsDetectedByHeartbeatTimeout) {
   // The call waiting on the frozen peer fails with `disconnected`, long before its deadline.
   ASSERT_EQ(stuck.wait_for(10s), std::future_status::ready);
   EXPECT_THROW(stuck.get(), Error);
+  // The peer fails its pending calls and marks itself down before it tells its listeners.
+  ASSERT_TRUE(planet_test::wait_until([&] { return events.snapshot().size() >= 2; }, 30s));
   {
     std::lock_guard lock(events.mutex);
     ASSERT_GE(events.kinds.size(), 2u);

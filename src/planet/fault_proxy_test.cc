@@ -497,6 +497,8 @@ TEST_F(FaultProxyPlanet, BlackholeIsDetectedByTheHeartbeatTimeout) {
   const auto start = Clock::now();
   ASSERT_TRUE(planet_test::wait_until([&] { return !peer_->is_connected(); }, 20s));
   const auto detected_after = Clock::now() - start;
+  // The peer marks itself down before it tells its listeners.
+  ASSERT_TRUE(planet_test::wait_until([&] { return events_.disconnects() >= 1; }, 20s));
   EXPECT_NE(events_.all_reasons().find("heartbeat timeout"), std::string::npos) << events_.all_reasons();
   EXPECT_LT(detected_after, 5s);
   // The call waiting on the silent peer fails long before its 20 s deadline.

@@ -445,8 +445,10 @@ TEST_F(MqttDevicesTest, AnOfflineDeviceLeavesTheServerAndComesBackWhenOnline) {
   ASSERT_TRUE(light("kettle_z2m"));
   fleet_.set_online("kettle", false);
   ASSERT_TRUE(planet_test::wait_until([&] { return !light("kettle_z2m"); })) << describe_services();
-  EXPECT_TRUE(
-      sf_.container().find(ServiceQuery::of_type("LightControl").in_room("kitchen")).empty());
+  // Its services are unbound (unavailable) first, then removed.
+  EXPECT_TRUE(planet_test::wait_until(
+      [&] { return sf_.container().find(ServiceQuery::of_type("LightControl").in_room("kitchen")).empty(); }))
+      << describe_services();
   EXPECT_FALSE(online("kettle_z2m"));
   EXPECT_TRUE(light("bedroom_lamp_z2m")) << "the others stay";
 
